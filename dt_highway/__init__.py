@@ -1,0 +1,26 @@
+"""dt-highway: a Gymnasium highway environment (extending highway-env) with a cloud digital
+twin that tags aggressive drivers, for human-in-the-loop and agent studies of
+connected-vehicle ADAS.
+
+``import dt_highway`` registers ``dt-highway-v0``; in a subprocess use the
+``"dt_highway:dt-highway-v0"`` id form so that the child imports (and registers) it too.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+import gymnasium as gym
+
+from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.env import ENV_ID, DTHighwayEnv
+
+try:
+    __version__ = version("dt-highway")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.0.0+unknown"
+
+if ENV_ID not in gym.registry:
+    gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv")
+
+__all__ = ["ConfigError", "DTConfig", "DTHighwayEnv", "ENV_ID", "load_config", "__version__"]

@@ -1,0 +1,175 @@
+"""The ``dt-highway`` command line.
+
+Every command has ``--help``, takes ``--scenario FILE`` and repeated ``--set key=value``,
+prints where its outputs went, and exits with status 2 and a one-line message on bad
+input (no traceback for a user's mistake).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from dt_highway.config import ConfigError, DTConfig, load_config
+
+
+class UserError(Exception):
+    """A mistake in the command line or its inputs: reported in one line, exit status 2."""
+
+
+def _json_safe(obj: Any) -> Any:
+    """NaN and infinities become ``null`` so the output is strict JSON."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+def dump_json(obj: Any) -> str:
+    """:return: ``obj`` as strict, indented JSON."""
+    return json.dumps(_json_safe(obj), indent=2, sort_keys=False, allow_nan=False)
+
+
+def _add_config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", metavar="FILE", help="scenario TOML file (e.g. envs/highway-trial.toml)")
+    p.add_argument(
+        "--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
+        help="override one configuration value, e.g. --set twin.uplink.noise_sigma_m=3 (repeatable)",
+    )
+
+
+def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DTConfig:
+    return load_config(args.scenario, args.overrides, extra)
+
+
+def _progress(total: int, desc: str, quiet: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="step", disable=quiet, file=sys.stderr, leave=False)
+
+
+def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number (got '{text}')") from None
+        if value <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0 (got {text})")
+        return value
+
+    return parse
+
+
+# ----------------------------------------------------------------------------- twin-eval
+def cmd_twin_eval(args: argparse.Namespace) -> int:
+    from dt_highway.twin.evaluate import evaluate_twin
+
+    cfg = _config(args)
+    steps = args.episodes * int(cfg.highway.duration * cfg.highway.policy_frequency)
+    with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
+        result = evaluate_twin(cfg, args.episodes, args.seed, args.min_observed_s, progress=bar.update)
+    if args.json:
+        print(dump_json(result))
+    else:
+        r = result
+        print(
+            f"precision {r['precision']:.3f}  recall {r['recall']:.3f}  median time to tag {r['median_time_to_tag_s']:.1f} s"
+            f"  (aggressive {r['n_aggressive']}, normal {r['n_normal']}, episodes {r['episodes']}, seed {r['seed']})"
+        )
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(dump_json(result) + "\n")
+        print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- run
+def cmd_run(args: argparse.Namespace) -> int:
+    """Headless episodes with the twin: what the ego receives, and how the tags compare."""
+    from dt_highway.twin.evaluate import evaluate_twin
+
+    cfg = _config(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    steps = args.episodes * int(cfg.highway.duration * cfg.highway.policy_frequency)
+    t0 = time.perf_counter()
+    with _progress(steps, "run", args.quiet) as bar:
+        result = evaluate_twin(cfg, args.episodes, args.seed, progress=bar.update)
+    result["wall_time_s"] = round(time.perf_counter() - t0, 2)
+    (out / "config.json").write_text(dump_json(cfg.to_dict()) + "\n")
+    (out / "twin_eval.json").write_text(dump_json(result) + "\n")
+    print(
+        f"twin tags vs ground truth: precision {result['precision']:.3f}, recall {result['recall']:.3f}, "
+        f"median time to tag {result['median_time_to_tag_s']:.1f} s "
+        f"({result['n_aggressive']} aggressive / {result['n_normal']} normal judgements)"
+    )
+    print(f"wrote {out / 'twin_eval.json'} and {out / 'config.json'}")
+    return 0
+
+
+# ----------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    from dt_highway import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="dt-highway",
+        description="Highway driving with a cloud digital twin that tags aggressive drivers (highway-env extension).",
+    )
+    parser.add_argument("--version", action="version", version=f"dt-highway {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run headless episodes and score the twin (the quick end-to-end run)")
+    _add_config_args(p)
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=2, help="episodes (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--out", default="runs/run", help="output directory (default runs/run)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("twin-eval", help="precision/recall of the twin's aggressive tags against ground truth")
+    _add_config_args(p)
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=3, help="episodes (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"), default=30.0,
+                   help="judge only drivers the twin observed this long [s] (default 30)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", help="also write the JSON result to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_twin_eval)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``dt-highway`` console script.
+
+    :param argv: arguments (default ``sys.argv[1:]``)
+    :return: exit status
+    """
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ConfigError, UserError) as exc:
+        print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"dt-highway {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

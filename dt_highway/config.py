@@ -1,0 +1,441 @@
+"""One typed, validated configuration tree for dt-highway.
+
+Layers, later ones win: the defaults below, then a scenario file (``envs/*.toml``),
+then ``--set dotted.key=value`` overrides (or a nested dict given to ``gym.make``).
+Dicts are merged **deeply**: ``{"twin": {"uplink": {"rate_hz": 5}}}`` changes one value
+and keeps every other default (highway-env's ``configure`` replaces nested dicts whole).
+
+Every mistake a user can make (unknown key, wrong type, out-of-range value, unreadable
+TOML) raises :class:`ConfigError`, a ``ValueError`` whose message is one line naming the
+dotted key and what is allowed.
+
+The ``highway`` section holds highway-env's own configuration keys with their usual
+meaning; for convenience those keys are also accepted at the top level of a dict, as a
+highway-env user would write them (``config={"lanes_count": 3}``).
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+
+class ConfigError(ValueError):
+    """A configuration mistake, described in one line (dotted key and what is allowed)."""
+
+
+class _Section(BaseModel):
+    """Base of every config section: unknown keys are errors, assignment is validated."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+# ----------------------------------------------------------------------------- highway-env
+class HighwayConfig(_Section):
+    """highway-env's own keys (see ``highway_env.envs.highway_env.HighwayEnv.default_config``)."""
+
+    lanes_count: int = Field(4, ge=1, le=10, description="number of lanes [-]")
+    vehicles_count: int = Field(40, ge=0, le=500, description="NPC vehicles on the road at once [-]")
+    duration: float = Field(40.0, gt=0, description="episode length [s]")
+    simulation_frequency: int = Field(15, ge=1, le=200, description="physics steps per second [Hz]")
+    policy_frequency: int = Field(1, ge=1, le=200, description="agent decisions per second [Hz]")
+    speed_limit: float = Field(30.0, gt=0, description="lane speed limit [m/s]")
+    road_length: float = Field(1.0e6, gt=100, description="length of the straight road [m]")
+    initial_lane_id: int | None = Field(None, ge=0, description="ego's starting lane (None: random)")
+    ego_speed: float = Field(25.0, ge=0, le=40, description="ego's initial speed [m/s]")
+    observation: dict[str, Any] = Field(default_factory=lambda: {"type": "Kinematics"})
+    action: dict[str, Any] = Field(default_factory=lambda: {"type": "DiscreteMetaAction"})
+    collision_reward: float = -1.0
+    right_lane_reward: float = 0.1
+    high_speed_reward: float = 0.4
+    lane_change_reward: float = 0.0
+    reward_speed_range: tuple[float, float] = (20.0, 30.0)
+    normalize_reward: bool = True
+    offroad_terminal: bool = False
+    screen_width: int = Field(600, ge=16, le=8192, description="top-down render width [px]")
+    screen_height: int = Field(150, ge=16, le=8192, description="top-down render height [px]")
+    centering_position: tuple[float, float] = (0.3, 0.5)
+    scaling: float = Field(5.5, gt=0, description="top-down render scale [px/m]")
+    show_trajectories: bool = False
+    render_agent: bool = True
+    offscreen_rendering: bool | None = None
+    manual_control: bool = False
+    real_time_rendering: bool = False
+
+    @model_validator(mode="after")
+    def _frequencies(self) -> HighwayConfig:
+        if self.simulation_frequency % self.policy_frequency:
+            raise ValueError(
+                "simulation_frequency must be a multiple of policy_frequency "
+                f"(got {self.simulation_frequency} and {self.policy_frequency})"
+            )
+        return self
+
+
+# ----------------------------------------------------------------------------- traffic
+class DriverParams(_Section):
+    """IDM (longitudinal) + MOBIL (lateral) parameters of one driver type."""
+
+    time_headway_s: float = Field(1.5, gt=0, le=5, description="IDM desired time gap [s]")
+    min_gap_m: float = Field(10.0, ge=0, description="IDM jam distance, bumper to bumper + length [m]")
+    comfort_acc_mps2: float = Field(3.0, gt=0, description="IDM maximum acceleration [m/s^2]")
+    comfort_dec_mps2: float = Field(5.0, gt=0, description="IDM comfortable deceleration [m/s^2]")
+    politeness: float = Field(0.5, ge=0, le=1, description="MOBIL politeness factor [-]")
+    lane_change_min_gain_mps2: float = Field(0.2, description="MOBIL acceleration gain threshold [m/s^2]")
+    max_braking_imposed_mps2: float = Field(2.0, gt=0, description="MOBIL safety criterion [m/s^2]")
+    lane_change_delay_s: float = Field(1.0, gt=0, description="time between lane-change decisions [s]")
+    lateral_time_constant_s: float = Field(
+        1.0, gt=0, description="lateral position controller time constant: smaller = faster lane change [s]"
+    )
+    max_lateral_speed_mps: float = Field(
+        1.0, gt=0, le=8, description="largest lateral speed while changing lane [m/s]"
+    )
+    target_speed_mps: tuple[float, float] = Field((22.0, 28.0), description="range of desired speeds [m/s]")
+
+
+def _normal_driver() -> DriverParams:
+    return DriverParams()
+
+
+def _aggressive_driver() -> DriverParams:
+    return DriverParams(
+        time_headway_s=0.7,
+        min_gap_m=7.0,
+        comfort_acc_mps2=4.0,
+        comfort_dec_mps2=7.0,
+        politeness=0.0,
+        lane_change_min_gain_mps2=0.05,
+        max_braking_imposed_mps2=6.0,
+        lane_change_delay_s=0.3,
+        lateral_time_constant_s=0.35,
+        max_lateral_speed_mps=3.0,
+        target_speed_mps=(27.0, 32.0),
+    )
+
+
+class TrafficConfig(_Section):
+    """NPC population: driver types, aggressive behaviour, spawning and recycling."""
+
+    aggressive_fraction: float = Field(0.2, ge=0, le=1, description="share of aggressive drivers [-]")
+    cut_in_rate_per_min: float = Field(
+        3.0, ge=0, description="how often an aggressive driver tries a cut-in [1/min]"
+    )
+    cut_in_gap_m: tuple[float, float] = Field(
+        (4.0, 20.0), description="bumper gap ahead of the victim that a cut-in accepts [m]"
+    )
+    cut_in_range_m: float = Field(
+        60.0, gt=0, description="cut-ins look for a victim within this distance behind [m]"
+    )
+    cut_in_ego_preference: float = Field(
+        0.7, ge=0, le=1, description="probability that a cut-in picks the ego when it is a candidate [-]"
+    )
+    driver_types: bool = Field(
+        True,
+        description="False: stock highway-env traffic (its spawning, plain IDMVehicle NPCs, no recycling)",
+    )
+    recycle: bool = Field(True, description="re-enter NPCs that drift far from the ego, remove crashed ones")
+    crashed_removal_s: float = Field(5.0, gt=0, description="a crashed NPC is towed away after this long [s]")
+    population_size: int = Field(
+        300, ge=1, description="distinct drivers (stable ids) the NPCs are drawn from [-]"
+    )
+    population_seed: int | None = Field(
+        None, description="seed of the driver population (None: derived from the env seed)"
+    )
+    spawn_behind_m: float = Field(150.0, ge=0, description="road behind the ego filled at reset [m]")
+    spawn_ahead_m: float = Field(350.0, gt=0, description="road ahead of the ego filled at reset [m]")
+    recycle_distance_m: float = Field(
+        400.0, gt=50, description="NPCs farther than this from the ego re-enter at the other edge [m]"
+    )
+    normal: DriverParams = Field(default_factory=_normal_driver)
+    aggressive: DriverParams = Field(default_factory=_aggressive_driver)
+
+    @model_validator(mode="after")
+    def _gap_range(self) -> TrafficConfig:
+        lo, hi = self.cut_in_gap_m
+        if not 0 <= lo < hi:
+            raise ValueError(f"cut_in_gap_m must be [low, high] with 0 <= low < high (got {list(self.cut_in_gap_m)})")
+        return self
+
+
+# ----------------------------------------------------------------------------- twin
+class LinkConfig(_Section):
+    """A one-way radio link: rate, latency and loss."""
+
+    rate_hz: float = Field(10.0, gt=0, le=1000, description="messages per second [Hz]")
+    latency_mean_s: float = Field(0.1, ge=0, le=10, description="mean latency [s]")
+    latency_jitter_s: float = Field(0.02, ge=0, le=10, description="latency standard deviation [s]")
+    loss_prob: float = Field(0.01, ge=0, lt=1, description="probability that a message is lost [-]")
+
+
+class UplinkConfig(LinkConfig):
+    """Vehicle -> cloud GNSS fixes."""
+
+    noise_sigma_m: float = Field(1.0, ge=0, le=50, description="GNSS horizontal noise, per axis [m]")
+    speed_noise_sigma_mps: float = Field(0.2, ge=0, description="GNSS speed noise [m/s]")
+    antenna_height_m: float = Field(1.5, ge=0, description="antenna height above the road [m]")
+
+
+class DownlinkConfig(LinkConfig):
+    """Cloud -> ego twin views."""
+
+    radius_m: float = Field(200.0, gt=0, description="vehicles within this distance of the ego are sent [m]")
+
+
+class StoreConfig(_Section):
+    """The cloud's per-vehicle fix history."""
+
+    window_s: float = Field(30.0, gt=0, description="fix history kept per vehicle [s]")
+    persist_across_episodes: bool = Field(
+        True, description="keep each driver's evidence and tag across resets of one env"
+    )
+    path: str | None = Field(None, description="SQLite file that keeps evidence across processes")
+
+
+class TaggerConfig(_Section):
+    """Sudden-lane-change detector and the Poisson-rate driver classifier (see twin/tagger.py)."""
+
+    update_hz: float = Field(2.0, gt=0, description="how often each history is re-analysed [Hz]")
+    smoothing_s: float = Field(1.0, gt=0, description="moving-average window on lateral position [s]")
+    hysteresis_m: float = Field(0.6, ge=0, description="lane-boundary hysteresis for lane-change detection [m]")
+    fit_window_s: float = Field(5.0, gt=0, description="samples either side of a crossing used in the ramp fit [s]")
+    sudden_lateral_speed_mps: float = Field(
+        1.8, gt=0, description="a lane change whose fitted mean lateral speed exceeds this is sudden [m/s]"
+    )
+    sudden_gap_s: float = Field(
+        0.8, ge=0, description="a lane change accepting a time gap below this to the new follower is sudden [s]"
+    )
+    rate_aggressive_per_min: float = Field(1.0, gt=0, description="twin's model: sudden changes of an aggressive driver [1/min]")
+    rate_normal_per_min: float = Field(0.2, gt=0, description="twin's model: sudden changes of a normal driver [1/min]")
+    prior_aggressive: float = Field(0.2, gt=0, lt=1, description="twin's prior share of aggressive drivers [-]")
+    threshold: float = Field(0.6, gt=0, lt=1, description="posterior above which the tag is 'aggressive' [-]")
+    max_evidence: int = Field(20, ge=1, description="sudden lane changes kept as evidence per driver [-]")
+
+    @model_validator(mode="after")
+    def _rates(self) -> TaggerConfig:
+        if self.rate_aggressive_per_min <= self.rate_normal_per_min:
+            raise ValueError("rate_aggressive_per_min must be larger than rate_normal_per_min")
+        return self
+
+
+class TwinConfig(_Section):
+    """The cloud digital twin: uplink, store, tagger, downlink."""
+
+    enabled: bool = True
+    connected_fraction: float = Field(1.0, ge=0, le=1, description="share of NPCs that upload fixes [-]")
+    preroll_s: float = Field(
+        60.0, ge=0, le=3600, description="traffic runs and the twin listens this long before t = 0 [s]"
+    )
+    in_observation: bool = Field(
+        False, description="add each observed vehicle's delivered twin tag to the Kinematics observation"
+    )
+    uplink: UplinkConfig = Field(default_factory=UplinkConfig)
+    downlink: DownlinkConfig = Field(
+        default_factory=lambda: DownlinkConfig(rate_hz=10.0, latency_mean_s=0.05, latency_jitter_s=0.01, loss_prob=0.0)
+    )
+    store: StoreConfig = Field(default_factory=StoreConfig)
+    tagger: TaggerConfig = Field(default_factory=TaggerConfig)
+
+
+# ----------------------------------------------------------------------------- ego
+class EgoConfig(_Section):
+    """The ego vehicle."""
+
+    autopilot: bool = Field(
+        False, description="the ego follows its lane with IDM by itself and actions are ignored (data generation)"
+    )
+    autopilot_speed_mps: float = Field(25.0, gt=0, le=40, description="the autopilot's desired speed [m/s]")
+
+
+# ----------------------------------------------------------------------------- root
+class DTConfig(_Section):
+    """The whole configuration of a dt-highway env."""
+
+    highway: HighwayConfig = Field(default_factory=HighwayConfig)
+    ego: EgoConfig = Field(default_factory=EgoConfig)
+    traffic: TrafficConfig = Field(default_factory=TrafficConfig)
+    twin: TwinConfig = Field(default_factory=TwinConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """:return: the resolved tree as plain Python values (TOML/JSON friendly)."""
+        return self.model_dump(mode="json")
+
+
+SECTIONS = tuple(DTConfig.model_fields)
+
+
+# ----------------------------------------------------------------------------- errors
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The section model found by following ``loc`` from the root, if it is one."""
+    model: type[BaseModel] = DTConfig
+    for part in loc:
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return None
+        ann = field.annotation
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            model = ann
+        else:
+            return None
+    return model
+
+
+def _describe(err: dict[str, Any]) -> str:
+    loc = tuple(err["loc"])
+    dotted = ".".join(str(p) for p in loc) or "<root>"
+    kind = err["type"]
+    if kind == "extra_forbidden":
+        parent = _model_at(loc[:-1])
+        allowed = ", ".join(parent.model_fields) if parent else "?"
+        return f"unknown key '{dotted}' (allowed here: {allowed})"
+    value = err.get("input")
+    shown = repr(value) if not isinstance(value, dict) else "a table"
+    msg = err["msg"]
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+    ctx = err.get("ctx") or {}
+    if kind in {"greater_than_equal", "greater_than", "less_than_equal", "less_than"}:
+        op = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}[kind]
+        bound = next(iter(ctx.values()), "?")
+        return f"{dotted} = {shown} is out of range: must be {op} {bound}"
+    if isinstance(value, dict) and kind == "value_error":
+        return f"{dotted}: {msg}"
+    if kind == "model_type" or kind == "dict_type":
+        return f"{dotted} must be a table of keys (got {shown})"
+    return f"{dotted} = {shown}: {msg}"
+
+
+def _raise_config_error(exc: ValidationError) -> None:
+    parts = [_describe(e) for e in exc.errors()]
+    raise ConfigError("invalid configuration: " + "; ".join(parts)) from None
+
+
+# ----------------------------------------------------------------------------- merging
+def deep_merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """Merge ``update`` into a copy of ``base``, recursing into nested dicts.
+
+    :param base: the lower layer
+    :param update: the higher layer (wins on conflicts)
+    :return: a new dict
+    """
+    out = copy.deepcopy(base)
+    for key, value in update.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and key not in ("observation", "action"):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
+    """Move highway-env keys given at the top level into the ``highway`` section."""
+    if not isinstance(tree, dict):
+        raise ConfigError(f"configuration must be a table of keys (got {type(tree).__name__})")
+    out: dict[str, Any] = {}
+    lifted: dict[str, Any] = {}
+    for key, value in tree.items():
+        if key not in SECTIONS and key in HighwayConfig.model_fields:
+            lifted[key] = value
+        else:
+            out[key] = value
+    if lifted:
+        hw = out.get("highway", {})
+        if not isinstance(hw, dict):
+            raise ConfigError(f"highway must be a table of keys (got {hw!r})")
+        out["highway"] = deep_merge(hw, lifted)
+    return out
+
+
+def validate(tree: dict[str, Any]) -> DTConfig:
+    """Validate a (partial) tree on top of the defaults.
+
+    :param tree: nested dict; missing keys take their defaults
+    :return: the validated configuration
+    :raises ConfigError: with a one-line message naming each bad key
+    """
+    tree = _lift_highway_keys(tree)
+    try:
+        return DTConfig.model_validate(tree)
+    except ValidationError as exc:
+        _raise_config_error(exc)
+        raise  # unreachable, for type checkers
+
+
+def merge(config: DTConfig, update: dict[str, Any] | None) -> DTConfig:
+    """Deep-merge a nested dict into an existing configuration and validate the result."""
+    if not update:
+        return config
+    return validate(deep_merge(config.to_dict(), _lift_highway_keys(update)))
+
+
+# ----------------------------------------------------------------------------- files and --set
+def read_scenario(path: str | Path) -> dict[str, Any]:
+    """Read a TOML scenario file.
+
+    :param path: file path (``envs/highway-trial.toml``)
+    :return: the nested dict it holds (not yet validated)
+    :raises ConfigError: if the file is missing or is not valid TOML
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"scenario file '{p}' does not exist")
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"scenario file '{p}' is not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"scenario file '{p}' cannot be read: {exc.strerror}") from None
+
+
+def parse_override(text: str) -> dict[str, Any]:
+    """Turn ``"a.b.c=value"`` into ``{"a": {"b": {"c": value}}}``.
+
+    The value is read as a TOML value (``5``, ``0.5``, ``true``, ``[1, 2]``, ``"text"``);
+    anything that is not valid TOML is taken as a plain string.
+
+    :raises ConfigError: when there is no ``=`` or the key is empty
+    """
+    if "=" not in text:
+        raise ConfigError(f"--set expects dotted.key=value (got '{text}')")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    parts = key.split(".")
+    if not key or any(not p for p in parts):
+        raise ConfigError(f"--set has an empty key part in '{text}'")
+    raw = raw.strip()
+    try:
+        value: Any = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    tree: dict[str, Any] = {parts[-1]: value}
+    for part in reversed(parts[:-1]):
+        tree = {part: tree}
+    return tree
+
+
+def load_config(
+    scenario: str | Path | None = None,
+    overrides: list[str] | tuple[str, ...] = (),
+    extra: dict[str, Any] | None = None,
+) -> DTConfig:
+    """Resolve the configuration: defaults <- scenario file <- ``extra`` dict <- ``--set`` overrides.
+
+    :param scenario: optional TOML scenario file
+    :param overrides: ``dotted.key=value`` strings
+    :param extra: optional nested dict (e.g. a command's own settings)
+    :return: the validated configuration
+    :raises ConfigError: on any bad layer
+    """
+    tree: dict[str, Any] = {}
+    if scenario is not None:
+        tree = deep_merge(tree, _lift_highway_keys(read_scenario(scenario)))
+    if extra:
+        tree = deep_merge(tree, _lift_highway_keys(extra))
+    for text in overrides:
+        tree = deep_merge(tree, parse_override(text))
+    return validate(tree)
+

@@ -1,0 +1,399 @@
+"""``dt-highway-v0``: highway-env's highway with driver types and a cloud digital twin.
+
+The env subclasses ``highway_env.envs.HighwayEnv``. On top of it:
+
+* its configuration is the typed tree of :mod:`dt_highway.config`, merged deeply;
+* NPCs are typed drivers (:mod:`dt_highway.traffic`) with stable ids drawn from a driver
+  population that persists across the episodes of one env;
+* every simulation step (not only every policy step), connected vehicles upload GNSS
+  fixes, the cloud twin stores and tags them, and the downlink delivers the twin's view to
+  the ego (:mod:`dt_highway.twin`);
+* before ``t = 0`` the traffic runs for ``twin.preroll_s`` with the ego on an IDM
+  autopilot, so that the twin has heard the drivers before the episode starts.
+
+``info`` holds ``time_s`` (episode clock [s]), ``ego`` (the ego's state), ``twin`` (the
+view the ego last received; never ground truth), and, under ``ground_truth``, the
+simulator's truth (driver types, positions, cut-ins) for evaluation only.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from highway_env.envs.common.observation import KinematicObservation
+from highway_env.envs.highway_env import HighwayEnv
+from highway_env.road.lane import StraightLane
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from scipy.optimize import linear_sum_assignment
+
+from dt_highway.config import DTConfig, merge
+from dt_highway.traffic import (
+    EGO_ID,
+    DriverPopulation,
+    TrafficEvent,
+    TrafficManager,
+    driver_type,
+    vehicle_id,
+)
+from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
+from dt_highway.twin.tagger import AGGRESSIVE, HighwayMap
+from dt_highway.twin.uplink import Uplink, VehicleState
+
+ENV_ID = "dt-highway-v0"
+
+
+class TwinTaggedKinematics(KinematicObservation):
+    """highway-env's Kinematics observation plus two columns from the delivered twin view.
+
+    ``twin_known`` is 1 when an observed vehicle was associated with a vehicle of the twin's
+    view, and ``twin_aggressive`` is then the twin's probability that its driver is
+    aggressive (0 otherwise). The association uses only what the ego received: each twin
+    position is moved forward by its age at its reported speed and heading, and observed
+    vehicles are matched to them by minimum total distance (Hungarian), gated at
+    ``GATE_M``. Ground truth is never read.
+    """
+
+    TWIN_FEATURES = ["twin_known", "twin_aggressive"]
+    GATE_M = 6.0
+    """Largest distance between an observed vehicle and a twin position to associate them [m]"""
+
+    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        self.base_features = list(self.features)
+        self.features = self.base_features + self.TWIN_FEATURES
+
+    def space(self) -> spaces.Space:
+        return spaces.Box(shape=(self.vehicles_count, len(self.features)), low=-np.inf, high=np.inf, dtype=np.float32)
+
+    def observe(self) -> np.ndarray:
+        out = np.zeros((self.vehicles_count, len(self.features)), dtype=np.float32)
+        if not self.env.road:
+            return out
+        order, self.order = self.order, "sorted"
+        features, self.features = self.features, self.base_features
+        try:
+            base = super().observe()
+        finally:
+            self.order, self.features = order, features
+        out[:, : base.shape[1]] = base
+        observed = [self.observer_vehicle] + self.env.road.close_objects_to(
+            self.observer_vehicle, self.env.PERCEPTION_DISTANCE, count=self.vehicles_count - 1,
+            see_behind=self.see_behind, sort=True, vehicles_only=not self.include_obstacles,
+        )[-self.vehicles_count + 1:]
+        view: TwinView | None = self.env.twin_view
+        if view is not None and view.vehicles and len(observed) > 1:
+            now = self.env.twin_now_s
+            pred = np.array([
+                [v.x_m + v.speed_mps * math.cos(v.heading_rad) * (now - v.t_fix_s),
+                 v.y_m + v.speed_mps * math.sin(v.heading_rad) * (now - v.t_fix_s)]
+                for v in view.vehicles
+            ])
+            pos = np.array([o.position for o in observed[1:]])
+            cost = np.linalg.norm(pos[:, None, :] - pred[None, :, :], axis=2)
+            rows, cols = linear_sum_assignment(cost)
+            k = len(self.base_features)
+            for r, c in zip(rows, cols):
+                if cost[r, c] <= self.GATE_M:
+                    tv = view.vehicles[c]
+                    p_aggr = tv.confidence if tv.tag == AGGRESSIVE else 1.0 - tv.confidence
+                    out[r + 1, k] = 1.0
+                    out[r + 1, k + 1] = p_aggr
+        if self.order == "shuffled":
+            self.env.np_random.shuffle(out[1:])
+        return out
+
+
+class DTHighwayEnv(HighwayEnv):
+    """The dt-highway environment (see the module docstring).
+
+    :param config: a (partial) nested configuration tree, merged deeply over the defaults;
+        highway-env keys may also be given at the top level
+    :param render_mode: ``None``, ``"human"`` or ``"rgb_array"`` (highway-env's top-down view)
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
+
+    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+        self.dt_config = DTConfig()
+        self.population: DriverPopulation | None = None
+        self.twin: CloudTwin | None = None
+        self.uplink: Uplink | None = None
+        self.downlink: Downlink | None = None
+        self.traffic: TrafficManager | None = None
+        self.twin_view: TwinView | None = None
+        self.sim_time_s = 0.0
+        self.twin_offset_s = 0.0
+        self._built_for: tuple[str, str] | None = None
+        self._population_seeded = False
+        self._events: list[TrafficEvent] = []
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
+        super().__init__(config, render_mode)
+
+    # ------------------------------------------------------------------ configuration
+    @classmethod
+    def default_config(cls) -> dict:
+        return cls._flat_highway_config(DTConfig())
+
+    @staticmethod
+    def _flat_highway_config(cfg: DTConfig) -> dict:
+        flat = HighwayEnv.default_config()
+        flat.update(cfg.highway.model_dump())
+        flat["observation"] = dict(cfg.highway.observation)
+        flat["action"] = dict(cfg.highway.action)
+        return flat
+
+    def configure(self, config: dict | None) -> None:
+        """Deep-merge a (partial) tree into the configuration and validate it.
+
+        :raises ConfigError: on unknown keys, wrong types or out-of-range values
+        """
+        self.dt_config = merge(self.dt_config, config)
+        self.config = self._flat_highway_config(self.dt_config)
+        if self.config["offscreen_rendering"] is None:
+            self.config["offscreen_rendering"] = self.render_mode != "human"
+
+    def define_spaces(self) -> None:
+        super().define_spaces()
+        if self.dt_config.twin.in_observation:
+            obs_cfg = dict(self.config["observation"])
+            if obs_cfg.pop("type", "Kinematics") != "Kinematics":
+                from dt_highway.config import ConfigError
+
+                raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
+            self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
+            self.observation_space = self.observation_type.space()
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        """Start an episode.
+
+        The driver population and the twin's memory of it are built at the first reset
+        given a ``seed`` (from ``traffic.population_seed`` when set) and then kept for the
+        env's later episodes, so the twin can know drivers from earlier episodes; they are
+        rebuilt when the traffic or twin configuration changes.
+
+        :param seed: seed of every random generator of the episode
+        :param options: ``{"config": {...}}`` deep-merges a partial configuration first
+        :return: observation and info
+        """
+        if seed is not None and not self._population_seeded:
+            self._built_for = None
+            self._population_seeded = True
+        return super().reset(seed=seed, options=options)
+
+    def _component_rngs(self) -> dict[str, np.random.Generator]:
+        seed = int(self.np_random.integers(2**63 - 1))
+        names = ("traffic", "uplink", "downlink")
+        return {n: np.random.default_rng(s) for n, s in zip(names, np.random.SeedSequence(seed).spawn(len(names)))}
+
+    def _build_persistent(self) -> None:
+        """Population and twin live across episodes; rebuilt only when their config changes."""
+        key = (self.dt_config.traffic.model_dump_json(), self.dt_config.twin.model_dump_json())
+        if key == self._built_for:
+            return
+        if self.twin is not None:
+            self.twin.close()
+        tcfg = self.dt_config.traffic
+        pop_seed = tcfg.population_seed if tcfg.population_seed is not None else int(self.np_random.integers(2**63 - 1))
+        self.population = DriverPopulation(
+            tcfg, self.dt_config.twin.connected_fraction if self.dt_config.twin.enabled else 0.0,
+            np.random.default_rng(pop_seed),
+        )
+        hw = self.dt_config.highway
+        self.road_map = HighwayMap(StraightLane.DEFAULT_WIDTH, hw.lanes_count)
+        self.twin = CloudTwin(self.dt_config.twin, self.road_map) if self.dt_config.twin.enabled else None
+        self.twin_offset_s = self.twin.now_s if self.twin is not None else 0.0
+        self._built_for = key
+
+    def _reset(self) -> None:
+        self._build_persistent()
+        rngs = self._component_rngs()
+        cfg = self.dt_config
+        self.traffic = TrafficManager(cfg.traffic, self.population, rngs["traffic"])
+        self.uplink = Uplink(cfg.twin.uplink, rngs["uplink"])
+        self.downlink = Downlink(cfg.twin.downlink, rngs["downlink"])
+        self.twin_view = None
+        self._events = []
+        preroll = cfg.twin.preroll_s if cfg.traffic.driver_types else 0.0
+        self.sim_time_s = -preroll
+        if self.twin is not None:
+            self.twin.start_episode()
+            # the twin clock runs on across episodes: this episode starts 1 s after the last
+            self.twin_offset_s = self.twin.now_s + 1.0 + preroll
+            self.twin.now_s = self.twin_now_s
+        self._create_road()
+        if cfg.traffic.driver_types:
+            self._create_typed_vehicles()
+            if preroll > 0:
+                self._preroll(preroll)
+        else:
+            super()._create_vehicles()
+            for i, v in enumerate(self.road.vehicles):
+                v.dt_id = i
+                v.dt_connected = cfg.twin.enabled and i > 0
+            self.vehicle.dt_connected = cfg.twin.enabled
+        self.sim_time_s = 0.0
+        self._events = []
+
+    def _create_road(self) -> None:
+        hw = self.dt_config.highway
+        self.road = Road(
+            network=RoadNetwork.straight_road_network(hw.lanes_count, length=hw.road_length, speed_limit=hw.speed_limit),
+            np_random=self.np_random,
+            record_history=self.config["show_trajectories"],
+            neighbour_vehicles_connected_lanes=self.config["neighbour_vehicles_connected_lanes"],
+        )
+
+    def _create_typed_vehicles(self) -> None:
+        hw = self.dt_config.highway
+        lane_id = hw.initial_lane_id if hw.initial_lane_id is not None else int(self.traffic.rng.integers(hw.lanes_count))
+        lane_id = min(lane_id, hw.lanes_count - 1)
+        lane_index = ("0", "1", lane_id)
+        lane = self.road.network.get_lane(lane_index)
+        x = self.dt_config.traffic.spawn_behind_m + 50.0
+        ego = self.action_type.vehicle_class(self.road, lane.position(x, 0), lane.heading_at(x), hw.ego_speed)
+        ego.dt_id = EGO_ID
+        ego.dt_connected = self.dt_config.twin.enabled
+        self.controlled_vehicles = [ego]
+        self.road.vehicles.append(ego)
+        if self.dt_config.ego.autopilot:
+            self._swap_ego(self._autopilot_from(ego))
+        self.traffic.time_s = self.sim_time_s
+        self.traffic.populate(self.road, ego, hw.vehicles_count)
+
+    def _preroll(self, duration_s: float) -> None:
+        """Run traffic (ego on the IDM autopilot) for ``duration_s`` before t = 0."""
+        autopilot = self.dt_config.ego.autopilot
+        if not autopilot:
+            self._swap_ego(self._autopilot_from(self.vehicle))
+        n = int(round(duration_s * self.config["simulation_frequency"]))
+        for _ in range(n):
+            self._sim_step()
+        if not autopilot:
+            stand_in = self.vehicle
+            ego = self.action_type.vehicle_class(self.road, stand_in.position, stand_in.heading, stand_in.speed)
+            ego.dt_id, ego.dt_connected = EGO_ID, stand_in.dt_connected
+            self._swap_ego(ego)
+
+    def _autopilot_from(self, ego: Vehicle) -> IDMVehicle:
+        """An IDM vehicle (no lane changes) in the ego's place and state."""
+        pilot = IDMVehicle(
+            self.road, ego.position, ego.heading, ego.speed, target_lane_index=ego.lane_index,
+            target_speed=self.dt_config.ego.autopilot_speed_mps, enable_lane_change=False,
+        )
+        pilot.dt_id, pilot.dt_connected = EGO_ID, getattr(ego, "dt_connected", False)
+        return pilot
+
+    def _swap_ego(self, new: Vehicle) -> None:
+        self.road.vehicles[self.road.vehicles.index(self.vehicle)] = new
+        self.controlled_vehicles = [new]
+
+    # ------------------------------------------------------------------ stepping
+    @property
+    def twin_now_s(self) -> float:
+        """Twin clock [s] at the current simulation time."""
+        return self.twin_offset_s + self.sim_time_s
+
+    def _simulate(self, action: Any = None) -> None:
+        frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
+        for frame in range(frames):
+            if action is not None and not self.config["manual_control"] and not self.dt_config.ego.autopilot and frame == 0:
+                self.action_type.act(action)
+            self._sim_step()
+            if frame < frames - 1:
+                self._automatic_rendering()
+        self.enable_auto_render = False
+
+    def _sim_step(self) -> None:
+        """One physics step, then the twin's uplink, cloud and downlink at the new time."""
+        dt = 1.0 / self.config["simulation_frequency"]
+        self.road.act()
+        self.road.step(dt)
+        self.steps += 1
+        t_prev = self.twin_now_s
+        self.sim_time_s += dt
+        if self.traffic is not None and self.dt_config.traffic.driver_types:
+            self.traffic.time_s = self.sim_time_s
+            self.traffic.recycle(self.road, self.vehicle)
+            for ev in self.traffic.drain_events():
+                if ev.kind == "despawn" and self.uplink is not None:
+                    self.uplink.forget(ev.vehicle_id)
+                self._events.append(ev)
+        if self.twin is not None:
+            now = self.twin_now_s
+            states = [
+                VehicleState(vehicle_id(v), float(v.position[0]), float(v.position[1]), float(v.velocity[0]),
+                             float(v.velocity[1]), float(v.speed), float(v.heading))
+                for v in self.road.vehicles
+                if getattr(v, "dt_connected", False)
+            ]
+            self.twin.receive(self.uplink.sample(t_prev, now, states))
+            self.twin.advance(now)
+            self.twin_view = self.downlink.step(self.twin, EGO_ID, now)
+
+    # ------------------------------------------------------------------ info
+    def _info(self, obs: Any, action: Any = None) -> dict:
+        info = super()._info(obs, action)
+        ego = self.vehicle
+        info["time_s"] = float(self.sim_time_s)
+        info["ego"] = {
+            "id": EGO_ID,
+            "x_m": float(ego.position[0]),
+            "y_m": float(ego.position[1]),
+            "speed_mps": float(ego.speed),
+            "heading_rad": float(ego.heading),
+            "lane": int(ego.lane_index[2]) if ego.lane_index else -1,
+            "crashed": bool(ego.crashed),
+        }
+        info["twin"] = self._twin_info()
+        info["ground_truth"] = {
+            "vehicles": {
+                vehicle_id(v): {
+                    "driver_type": driver_type(v),
+                    "connected": bool(getattr(v, "dt_connected", False)),
+                    "x_m": float(v.position[0]),
+                    "y_m": float(v.position[1]),
+                    "speed_mps": float(v.speed),
+                    "lane": int(v.lane_index[2]) if v.lane_index else -1,
+                    "crashed": bool(v.crashed),
+                }
+                for v in self.road.vehicles
+                if v is not ego
+            },
+            "events": [ev.__dict__.copy() for ev in self._events],
+        }
+        self._events = []
+        return info
+
+    def _twin_info(self) -> list[dict[str, Any]] | None:
+        """The delivered twin view with times on the episode clock [s] and ages [s]."""
+        view = self.twin_view
+        if view is None:
+            return None
+        now = self.twin_now_s
+        return [
+            {
+                "vehicle_id": v.vehicle_id,
+                "t_fix_s": v.t_fix_s - self.twin_offset_s,
+                "age_s": now - v.t_fix_s,
+                "x_m": v.x_m,
+                "y_m": v.y_m,
+                "speed_mps": v.speed_mps,
+                "heading_rad": v.heading_rad,
+                "tag": v.tag,
+                "confidence": v.confidence,
+                "n_sudden": v.n_sudden,
+            }
+            for v in view.vehicles
+        ]
+
+    def close(self) -> None:
+        if self.twin is not None:
+            self.twin.close()
+        super().close()

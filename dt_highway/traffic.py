@@ -1,0 +1,393 @@
+"""Traffic with driver types: stable ids, normal and aggressive drivers, cut-ins.
+
+highway-env's ``AggressiveVehicle`` is only a preset of controller gains and nothing marks
+a vehicle as aggressive; here every NPC carries a ground-truth driver type that only the
+simulator knows (the twin must infer it from GNSS fixes).
+
+* **normal** drivers: IDM + courteous MOBIL (politeness 0.5), gentle lane changes
+  (lateral speed <= 1 m/s, a 4 m lane change takes about 4-5 s).
+* **aggressive** drivers: short time headway, no politeness, small accepted gaps, short
+  lane-change delay, fast lane changes (lateral speed up to 3 m/s, about 1.5-2 s), and
+  **cut-ins**: at a Poisson rate they pick a vehicle in a neighbouring lane that they are
+  just ahead of (the ego preferred) and change into its lane with a small gap.
+
+Vehicle ids are stable for the whole episode (and, through :class:`DriverPopulation`,
+across the episodes of one env): the ego is 0, NPCs are drivers ``1..population_size``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from highway_env import utils
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+from dt_highway.config import DriverParams, TrafficConfig
+
+NORMAL = "normal"
+AGGRESSIVE = "aggressive"
+DRIVER_TYPES = (NORMAL, AGGRESSIVE)
+EGO_ID = 0
+
+
+def vehicle_id(vehicle: Vehicle) -> int:
+    """:return: the stable integer id of a vehicle (ego 0), or -1 for a foreign object."""
+    return int(getattr(vehicle, "dt_id", -1))
+
+
+def driver_type(vehicle: Vehicle) -> str | None:
+    """:return: the ground-truth driver type of an NPC, ``None`` for the ego. Evaluation only."""
+    return getattr(vehicle, "dt_driver_type", None)
+
+
+@dataclass(frozen=True)
+class Driver:
+    """One member of the driver population (ground truth).
+
+    :param driver_id: stable id, also the vehicle id while this driver is on the road
+    :param driver_type: ``"normal"`` or ``"aggressive"``
+    :param desired_speed_mps: IDM desired speed [m/s]
+    :param connected: whether the vehicle uploads GNSS fixes to the cloud twin
+    """
+
+    driver_id: int
+    driver_type: str
+    desired_speed_mps: float
+    connected: bool
+
+
+class DriverPopulation:
+    """A fixed, seeded set of drivers that NPC vehicles are drawn from.
+
+    The share of aggressive drivers is exact (``round(fraction * size)``); which drivers are
+    aggressive and which are connected is drawn from ``rng``.
+
+    :param config: traffic configuration
+    :param connected_fraction: share of connected drivers [-]
+    :param rng: the population's random generator
+    """
+
+    def __init__(self, config: TrafficConfig, connected_fraction: float, rng: np.random.Generator) -> None:
+        n = config.population_size
+        n_aggr = int(round(config.aggressive_fraction * n))
+        types = np.array([AGGRESSIVE] * n_aggr + [NORMAL] * (n - n_aggr))
+        rng.shuffle(types)
+        n_conn = int(round(connected_fraction * n))
+        connected = np.zeros(n, dtype=bool)
+        connected[rng.permutation(n)[:n_conn]] = True
+        self.drivers: dict[int, Driver] = {}
+        for i in range(n):
+            params = config.aggressive if types[i] == AGGRESSIVE else config.normal
+            lo, hi = params.target_speed_mps
+            speed = float(rng.uniform(lo, hi))
+            self.drivers[i + 1] = Driver(i + 1, str(types[i]), speed, bool(connected[i]))
+
+    def __len__(self) -> int:
+        return len(self.drivers)
+
+    def __getitem__(self, driver_id: int) -> Driver:
+        return self.drivers[driver_id]
+
+
+class TypedDriverVehicle(IDMVehicle):
+    """An IDM/MOBIL vehicle whose gains come from its driver type, plus aggressive cut-ins.
+
+    The lateral controller is a lateral-speed-limited lane follower: desired lateral speed
+    ``-offset / lateral_time_constant_s`` clipped to ``max_lateral_speed_mps``, turned into a
+    heading reference, tracked by a proportional heading loop and a kinematic bicycle
+    inversion. The limit on lateral speed is what makes a lane change gentle or sudden.
+    """
+
+    MAX_LATERAL_SPEED_MPS = 1.0
+
+    def __init__(self, road: Road, position, heading: float = 0, speed: float = 0, **kwargs) -> None:
+        super().__init__(road, position, heading, speed, **kwargs)
+        self.dt_id = -1
+        self.dt_driver_type = NORMAL
+        self.clock_s = 0.0
+        self.cut_in: CutInPolicy | None = None
+
+    def apply_params(self, params: DriverParams) -> None:
+        """Set this vehicle's IDM/MOBIL gains from a driver type's parameters."""
+        self.TIME_WANTED = params.time_headway_s
+        self.DISTANCE_WANTED = params.min_gap_m
+        self.COMFORT_ACC_MAX = params.comfort_acc_mps2
+        self.COMFORT_ACC_MIN = -params.comfort_dec_mps2
+        self.POLITENESS = params.politeness
+        self.LANE_CHANGE_MIN_ACC_GAIN = params.lane_change_min_gain_mps2
+        self.LANE_CHANGE_MAX_BRAKING_IMPOSED = params.max_braking_imposed_mps2
+        self.LANE_CHANGE_DELAY = params.lane_change_delay_s
+        self.KP_LATERAL = 1.0 / params.lateral_time_constant_s
+        self.MAX_LATERAL_SPEED_MPS = params.max_lateral_speed_mps
+
+    def randomize_behavior(self) -> None:
+        """Keep the driver type's gains (highway-env's version would only redraw DELTA)."""
+
+    def steering_control(self, target_lane_index) -> float:
+        lane = self.road.network.get_lane(target_lane_index)
+        s, offset = lane.local_coordinates(self.position)
+        speed = max(abs(self.speed), 1e-3)
+        lateral_speed = float(np.clip(-self.KP_LATERAL * offset, -self.MAX_LATERAL_SPEED_MPS, self.MAX_LATERAL_SPEED_MPS))
+        heading_ref = lane.heading_at(s + self.speed * self.TAU_PURSUIT) + np.arcsin(
+            np.clip(lateral_speed / speed, -0.7, 0.7)
+        )
+        heading_rate = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
+        # kinematic bicycle: heading rate = v sin(beta) / (L/2), tan(delta) = 2 tan(beta)
+        beta = np.arcsin(np.clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
+        return float(np.clip(np.arctan(2.0 * np.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+
+    def act(self, action: dict | str | None = None) -> None:
+        if self.cut_in is not None and not self.crashed:
+            self.cut_in.maybe_cut_in(self)
+        super().act(action)
+
+    def step(self, dt: float) -> None:
+        self.clock_s += dt
+        super().step(dt)
+
+
+@dataclass
+class CutInPolicy:
+    """When and in front of whom an aggressive driver cuts in.
+
+    Attempts arrive as a Poisson process of rate ``rate_per_min``; an attempt stays open for
+    ``patience_s`` until a victim qualifies: a vehicle in a neighbouring lane that this
+    driver is just ahead of, with a bumper gap in ``gap_m`` and not much faster than this
+    driver. The ego is chosen with probability ``ego_preference`` when it qualifies.
+    """
+
+    rate_per_min: float
+    gap_m: tuple[float, float]
+    search_range_m: float
+    ego_preference: float
+    rng: np.random.Generator
+    on_cut_in: Callable[[TypedDriverVehicle, Vehicle], None] | None = None
+    patience_s: float = 10.0
+    next_attempt_s: float = field(default=float("inf"))
+
+    def schedule(self, now_s: float) -> None:
+        """Draw the time of the next attempt after ``now_s`` [s]."""
+        if self.rate_per_min <= 0:
+            self.next_attempt_s = float("inf")
+        else:
+            self.next_attempt_s = now_s + float(self.rng.exponential(60.0 / self.rate_per_min))
+
+    def maybe_cut_in(self, me: TypedDriverVehicle) -> None:
+        now = me.clock_s
+        if now < self.next_attempt_s or me.lane_index != me.target_lane_index:
+            return
+        if now > self.next_attempt_s + self.patience_s:
+            self.schedule(now)
+            return
+        victims = self._candidates(me)
+        if not victims:
+            return
+        egos = [v for v in victims if vehicle_id(v) == EGO_ID]
+        if egos and self.rng.random() < self.ego_preference:
+            victim = egos[0]
+        else:
+            victim = victims[int(self.rng.integers(len(victims)))]
+        me.target_lane_index = victim.lane_index
+        me.timer = 0.0
+        if self.on_cut_in is not None:
+            self.on_cut_in(me, victim)
+        self.schedule(now)
+
+    def _candidates(self, me: TypedDriverVehicle) -> list[Vehicle]:
+        side = set(me.road.network.side_lanes(me.lane_index))
+        lo, hi = self.gap_m
+        out = []
+        for v in me.road.vehicles:
+            if v is me or v.crashed or v.lane_index not in side:
+                continue
+            dx = me.position[0] - v.position[0]
+            if not 0.0 < dx < self.search_range_m:
+                continue
+            gap = dx - (me.LENGTH + v.LENGTH) / 2.0
+            if lo <= gap <= hi and v.speed <= me.speed + 3.0:
+                out.append(v)
+        return out
+
+
+@dataclass
+class TrafficEvent:
+    """Something that happened in traffic (ground truth, for evaluation and logs).
+
+    :param time_s: simulation time [s]
+    :param kind: ``"cut_in"``, ``"spawn"``, ``"despawn"``
+    :param vehicle_id: the acting vehicle
+    :param other_id: the victim of a cut-in, else -1
+    :param driver_type: the acting vehicle's true driver type
+    """
+
+    time_s: float
+    kind: str
+    vehicle_id: int
+    other_id: int = -1
+    driver_type: str | None = None
+
+
+class TrafficManager:
+    """Creates NPCs from the driver population around the ego, and keeps traffic around it.
+
+    Vehicles that drift farther than ``recycle_distance_m`` from the ego leave the road and
+    another driver of the population (not on the road now) enters at the opposite edge, so
+    that traffic density around the ego stays the same for hours of simulated time. Crashed
+    NPCs are towed away after ``crashed_removal_s``.
+
+    :param config: traffic configuration
+    :param population: drivers to draw NPCs from
+    :param rng: this component's random generator
+    """
+
+    MIN_SPAWN_GAP_M = 25.0
+    """Smallest centre-to-centre distance to any vehicle in the lane when spawning [m]"""
+    REENTRY_COOLDOWN_S = 120.0
+    """A driver who left the road re-enters no sooner than this [s]"""
+
+    def __init__(self, config: TrafficConfig, population: DriverPopulation, rng: np.random.Generator) -> None:
+        self.config = config
+        self.population = population
+        self.rng = rng
+        self.time_s = 0.0
+        self.events: list[TrafficEvent] = []
+        self._crash_time: dict[int, float] = {}
+        self._left_at: dict[int, float] = {}
+
+    # ------------------------------------------------------------------ creation
+    def make_vehicle(self, road: Road, driver: Driver, lane_index, x_m: float, speed_mps: float) -> TypedDriverVehicle:
+        """Create one NPC of ``driver`` on ``lane_index`` at longitudinal position ``x_m``."""
+        lane = road.network.get_lane(lane_index)
+        v = TypedDriverVehicle(
+            road, lane.position(x_m, 0.0), lane.heading_at(x_m), speed_mps,
+            target_lane_index=lane_index, target_speed=driver.desired_speed_mps,
+        )
+        params = self.config.aggressive if driver.driver_type == AGGRESSIVE else self.config.normal
+        v.apply_params(params)
+        v.DELTA = 4.0
+        v.timer = float(self.rng.uniform(0, params.lane_change_delay_s))
+        v.dt_id = driver.driver_id
+        v.dt_driver_type = driver.driver_type
+        v.dt_connected = driver.connected
+        v.clock_s = self.time_s
+        if driver.driver_type == AGGRESSIVE and self.config.cut_in_rate_per_min > 0:
+            v.cut_in = CutInPolicy(
+                rate_per_min=self.config.cut_in_rate_per_min,
+                gap_m=self.config.cut_in_gap_m,
+                search_range_m=self.config.cut_in_range_m,
+                ego_preference=self.config.cut_in_ego_preference,
+                rng=self.rng,
+                on_cut_in=self._record_cut_in,
+            )
+            v.cut_in.schedule(self.time_s)
+        return v
+
+    def _record_cut_in(self, me: TypedDriverVehicle, victim: Vehicle) -> None:
+        self.events.append(TrafficEvent(self.time_s, "cut_in", me.dt_id, vehicle_id(victim), me.dt_driver_type))
+
+    def _free_drivers(self, road: Road) -> list[int]:
+        on_road = {vehicle_id(v) for v in road.vehicles}
+        cutoff = self.time_s - self.REENTRY_COOLDOWN_S
+        self._left_at = {i: t for i, t in self._left_at.items() if t > cutoff}
+        return [i for i in self.population.drivers if i not in on_road and i not in self._left_at]
+
+    def _leave(self, v: Vehicle) -> None:
+        vid = vehicle_id(v)
+        self._left_at[vid] = self.time_s
+        self.events.append(TrafficEvent(self.time_s, "despawn", vid, driver_type=driver_type(v)))
+
+    def populate(self, road: Road, ego: Vehicle, count: int) -> None:
+        """Place ``count`` NPCs between ``spawn_behind_m`` behind and ``spawn_ahead_m`` ahead of the ego."""
+        lanes = road.network.lanes_list()
+        lane_indices = [road.network.get_closest_lane_index(lane.position(0, 0)) for lane in lanes]
+        free = self._free_drivers(road)
+        count = min(count, len(free))
+        chosen = self.rng.choice(free, size=count, replace=False) if count else []
+        per_lane = utils.near_split(count, num_bins=len(lanes)) if count else []
+        x0 = ego.position[0] - self.config.spawn_behind_m
+        span = self.config.spawn_behind_m + self.config.spawn_ahead_m
+        k = 0
+        for lane_index, n in zip(lane_indices, per_lane):
+            if n == 0:
+                continue
+            slot = span / n
+            for j in range(n):
+                x = x0 + (j + float(self.rng.uniform(0.25, 0.75))) * slot
+                if lane_index == ego.lane_index and abs(x - ego.position[0]) < self.MIN_SPAWN_GAP_M:
+                    x = ego.position[0] + np.sign(x - ego.position[0] + 1e-9) * self.MIN_SPAWN_GAP_M
+                driver = self.population[int(chosen[k])]
+                k += 1
+                speed = min(driver.desired_speed_mps, float(self.rng.uniform(22.0, 26.0)))
+                road.vehicles.append(self.make_vehicle(road, driver, lane_index, x, speed))
+
+    # ------------------------------------------------------------------ upkeep
+    def recycle(self, road: Road, ego: Vehicle) -> None:
+        """Remove far or long-crashed NPCs and re-enter as many drivers at the far edges."""
+        if not self.config.recycle:
+            return
+        ex = ego.position[0]
+        removed_behind = removed_ahead = 0
+        keep = []
+        for v in road.vehicles:
+            vid = vehicle_id(v)
+            if v is ego or vid == EGO_ID:
+                keep.append(v)
+                continue
+            dx = v.position[0] - ex
+            if v.crashed:
+                t0 = self._crash_time.setdefault(vid, self.time_s)
+                if self.time_s - t0 >= self.config.crashed_removal_s:
+                    self._crash_time.pop(vid, None)
+                    removed_behind += dx < 0
+                    removed_ahead += dx >= 0
+                    self._leave(v)
+                    continue
+            if dx < -self.config.recycle_distance_m:
+                removed_behind += 1
+                self._leave(v)
+                continue
+            if dx > self.config.recycle_distance_m:
+                removed_ahead += 1
+                self._leave(v)
+                continue
+            keep.append(v)
+        if removed_behind == removed_ahead == 0:
+            return
+        road.vehicles[:] = keep
+        # vehicles that fell behind re-enter ahead, and the other way round
+        for _ in range(removed_behind):
+            self._spawn_at_edge(road, ego, ahead=True)
+        for _ in range(removed_ahead):
+            self._spawn_at_edge(road, ego, ahead=False)
+
+    def _spawn_at_edge(self, road: Road, ego: Vehicle, ahead: bool) -> bool:
+        free = self._free_drivers(road)
+        if not free:
+            return False
+        lanes = road.network.lanes_list()
+        edge = self.config.spawn_ahead_m if ahead else -self.config.spawn_behind_m
+        x = ego.position[0] + edge
+        for lane_id in self.rng.permutation(len(lanes)):
+            lane = lanes[int(lane_id)]
+            lane_index = road.network.get_closest_lane_index(lane.position(x, 0))
+            occupied = any(
+                v.lane_index == lane_index and abs(v.position[0] - x) < self.MIN_SPAWN_GAP_M for v in road.vehicles
+            )
+            if occupied:
+                continue
+            driver = self.population[int(self.rng.choice(free))]
+            # enter at the speed of the flow the vehicle joins
+            speed = float(np.clip(ego.speed, 18.0, driver.desired_speed_mps))
+            road.vehicles.append(self.make_vehicle(road, driver, lane_index, x, speed))
+            self.events.append(TrafficEvent(self.time_s, "spawn", driver.driver_id, driver_type=driver.driver_type))
+            return True
+        return False
+
+    def drain_events(self) -> list[TrafficEvent]:
+        """:return: the events since the last call (and forget them: memory stays flat)."""
+        out, self.events = self.events, []
+        return out

@@ -1,0 +1,227 @@
+"""The cloud digital twin: receives fixes, keeps histories, tags drivers, serves views.
+
+All times here are on the **twin clock** [s], which runs on across the episodes of one env
+(the env adds an offset to its episode clock), so that a driver's evidence and tag can
+outlive an episode when ``store.persist_across_episodes`` is on.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import json
+import math
+import sqlite3
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dt_highway.config import DownlinkConfig, TwinConfig
+from dt_highway.twin.store import FixStore
+from dt_highway.twin.tagger import DriverRecord, HighwayMap, LaneChange, Tagger
+from dt_highway.twin.uplink import GnssFix
+
+
+@dataclass(frozen=True)
+class TwinVehicleView:
+    """The twin's view of one vehicle, as sent to the ego.
+
+    :param vehicle_id: stable id
+    :param t_fix_s: twin time the newest fix was taken [s]
+    :param x_m: last known position along the road [m]
+    :param y_m: last known lateral position [m]
+    :param speed_mps: last known speed [m/s]
+    :param heading_rad: last known heading [rad]
+    :param tag: ``"aggressive"`` or ``"normal"``
+    :param confidence: probability of ``tag`` under the twin's model [-]
+    :param n_sudden: sudden lane changes seen
+    :param observed_s: time the twin has observed this driver [s]
+    """
+
+    vehicle_id: int
+    t_fix_s: float
+    x_m: float
+    y_m: float
+    speed_mps: float
+    heading_rad: float
+    tag: str
+    confidence: float
+    n_sudden: int
+    observed_s: float
+
+
+@dataclass(frozen=True)
+class TwinView:
+    """One downlink message: what the twin knew of the ego's neighbourhood.
+
+    :param t_sent_s: twin time it left the cloud [s]
+    :param t_received_s: twin time the ego received it [s]
+    :param vehicles: one entry per nearby connected vehicle (the ego excluded)
+    """
+
+    t_sent_s: float
+    t_received_s: float
+    vehicles: tuple[TwinVehicleView, ...]
+
+    def by_id(self) -> dict[int, TwinVehicleView]:
+        """:return: the entries keyed by vehicle id."""
+        return {v.vehicle_id: v for v in self.vehicles}
+
+
+class CloudTwin:
+    """Fix store + tagger, fed by the uplink.
+
+    :param config: twin configuration
+    :param road: the map (lane geometry)
+    """
+
+    def __init__(self, config: TwinConfig, road: HighwayMap) -> None:
+        self.config = config
+        self.road = road
+        self.store = FixStore(config.store.window_s)
+        self.tagger = Tagger(config.tagger, road)
+        self.now_s = 0.0
+        self._pending: list[tuple[float, int, GnssFix]] = []
+        self._seq = itertools.count()
+        self._dirty: set[int] = set()
+        self._next_update_s = -math.inf
+        if config.store.path:
+            load_records(config.store.path, self)
+
+    def start_episode(self) -> None:
+        """Forget raw histories and in-flight fixes (positions of another episode); keep or
+        drop the drivers' records according to ``store.persist_across_episodes``."""
+        self.store.clear()
+        self._pending.clear()
+        self._dirty.clear()
+        if not self.config.store.persist_across_episodes:
+            self.tagger.records.clear()
+
+    def receive(self, fixes: list[GnssFix]) -> None:
+        """Queue fixes; each enters the store at its arrival time."""
+        for f in fixes:
+            heapq.heappush(self._pending, (f.arrival_s, next(self._seq), f))
+
+    def advance(self, now_s: float) -> None:
+        """Move the twin clock to ``now_s``: store arrived fixes, re-tag at ``update_hz``."""
+        self.now_s = now_s
+        arrived = []
+        while self._pending and self._pending[0][0] <= now_s:
+            arrived.append(heapq.heappop(self._pending)[2])
+        if arrived:
+            self._dirty |= self.store.add(arrived)
+        if now_s >= self._next_update_s:
+            self._next_update_s = now_s + 1.0 / self.config.tagger.update_hz
+            for vid in sorted(self._dirty):
+                self.tagger.update(self.store, vid, now_s)
+            self._dirty.clear()
+            self.store.drop_older_than(now_s - self.config.store.window_s)
+
+    def n_pending(self) -> int:
+        """:return: fixes sent but not yet arrived."""
+        return len(self._pending)
+
+    def view_around(self, ego_id: int) -> tuple[TwinVehicleView, ...]:
+        """The twin's view of the vehicles within the downlink radius of the ego's last fix."""
+        ego = self.store.latest(ego_id)
+        if ego is None:
+            return ()
+        r2 = self.config.downlink.radius_m ** 2
+        out = []
+        for vid in self.store.vehicle_ids():
+            if vid == ego_id:
+                continue
+            f = self.store.latest(vid)
+            if f is None or (f.x_m - ego.x_m) ** 2 + (f.y_m - ego.y_m) ** 2 > r2:
+                continue
+            rec = self.tagger.record(vid, self.now_s)
+            out.append(
+                TwinVehicleView(
+                    vid, f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad,
+                    rec.tag, float(rec.confidence), rec.n_sudden, float(rec.observed_s),
+                )
+            )
+        return tuple(out)
+
+    def close(self) -> None:
+        """Write the drivers' records to the SQLite file, if one is configured."""
+        if self.config.store.path:
+            save_records(self.config.store.path, self)
+
+
+class Downlink:
+    """Cloud -> ego messages at a fixed rate, with latency and loss.
+
+    :param config: downlink configuration
+    :param rng: this component's random generator
+    """
+
+    def __init__(self, config: DownlinkConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self.rng = rng
+        self.latest: TwinView | None = None
+        self._queue: list[tuple[float, int, TwinView]] = []
+        self._seq = itertools.count()
+        self._next_send_s = -math.inf
+
+    def reset(self) -> None:
+        """Forget messages in flight and the last one received."""
+        self.latest = None
+        self._queue.clear()
+        self._next_send_s = -math.inf
+
+    def step(self, twin: CloudTwin, ego_id: int, now_s: float) -> TwinView | None:
+        """Send a view when one is due, deliver those that arrived by ``now_s``.
+
+        :return: the newest view received so far (``None`` before the first)
+        """
+        cfg = self.config
+        if now_s >= self._next_send_s:
+            self._next_send_s = (now_s if not math.isfinite(self._next_send_s) else self._next_send_s) + 1.0 / cfg.rate_hz
+            lost = self.rng.random() < cfg.loss_prob
+            latency = max(0.0, cfg.latency_mean_s + cfg.latency_jitter_s * float(self.rng.normal()))
+            if not lost:
+                view = TwinView(now_s, now_s + latency, twin.view_around(ego_id))
+                heapq.heappush(self._queue, (view.t_received_s, next(self._seq), view))
+        while self._queue and self._queue[0][0] <= now_s:
+            view = heapq.heappop(self._queue)[2]
+            if self.latest is None or view.t_sent_s > self.latest.t_sent_s:
+                self.latest = view
+        return self.latest
+
+
+# ----------------------------------------------------------------------------- SQLite persistence
+def save_records(path: str | Path, twin: CloudTwin) -> None:
+    """Write every driver record and the twin clock to a SQLite file (replacing its content)."""
+    con = sqlite3.connect(str(path))
+    try:
+        with con:
+            con.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
+            con.execute("CREATE TABLE IF NOT EXISTS drivers (vehicle_id INTEGER PRIMARY KEY, record TEXT)")
+            con.execute("INSERT OR REPLACE INTO meta VALUES ('now_s', ?)", (repr(twin.now_s),))
+            con.executemany(
+                "INSERT OR REPLACE INTO drivers VALUES (?, ?)",
+                [(vid, json.dumps(asdict(rec))) for vid, rec in twin.tagger.records.items()],
+            )
+    finally:
+        con.close()
+
+
+def load_records(path: str | Path, twin: CloudTwin) -> None:
+    """Read driver records written by :func:`save_records` (a missing file is an empty memory)."""
+    if not Path(path).exists():
+        return
+    con = sqlite3.connect(str(path))
+    try:
+        row = con.execute("SELECT value FROM meta WHERE key = 'now_s'").fetchone()
+        if row:
+            twin.now_s = float(row[0])
+        for vid, text in con.execute("SELECT vehicle_id, record FROM drivers"):
+            d = json.loads(text)
+            d["evidence"] = [LaneChange(**e) for e in d["evidence"]]
+            twin.tagger.records[int(vid)] = DriverRecord(**d)
+    except (sqlite3.DatabaseError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"twin.store.path '{path}' is not a dt-highway twin store: {exc}") from None
+    finally:
+        con.close()

@@ -1,0 +1,321 @@
+"""The twin's tagger: sudden lane changes from GNSS history, and the driver's tag.
+
+Only the received fix history is used (never the simulator's driver types).
+
+1. **Lane changes.** The lateral position (the twin knows the map: lane centres) is
+   smoothed with a moving average of ``smoothing_s``; a lane change is the smoothed
+   position crossing a lane boundary by more than ``hysteresis_m``.
+2. **How sudden.** A ramp ``y(t) = a + dy * clip((t - t0) / T + 1/2, 0, 1)`` with the known
+   lane offset ``dy`` is fitted by least squares (grid over mid-time ``t0`` and duration
+   ``T``) to the *raw* fixes within ``fit_window_s`` of the crossing. Its mean lateral speed
+   ``|dy| / T`` is robust to GNSS noise where differentiating the fixes is not (1 m of noise
+   at 10 Hz gives ~14 m/s of noise on a finite difference). The change is **sudden** when
+   that speed exceeds ``sudden_lateral_speed_mps`` or when the accepted time gap to the
+   new follower (another connected vehicle, from its own fixes) is below ``sudden_gap_s``.
+3. **Tag.** Sudden lane changes are modelled as a Poisson process whose rate is
+   ``rate_aggressive_per_min`` for an aggressive driver and ``rate_normal_per_min`` for a
+   normal one. After ``n`` sudden changes in ``T`` observed minutes the log-likelihood ratio
+   is ``n log(ra / rn) - (ra - rn) T``; with the prior this gives the posterior probability
+   that the driver is aggressive. The tag is ``aggressive`` when it exceeds ``threshold``;
+   the confidence is the posterior probability of the tag given.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dt_highway.config import TaggerConfig
+from dt_highway.twin.store import FixStore
+
+AGGRESSIVE = "aggressive"
+NORMAL = "normal"
+
+
+@dataclass(frozen=True)
+class HighwayMap:
+    """What the cloud knows of the road: straight parallel lanes.
+
+    :param lane_width_m: lane width [m]
+    :param n_lanes: number of lanes
+    :param first_lane_y_m: lateral position of lane 0's centre [m]
+    """
+
+    lane_width_m: float
+    n_lanes: int
+    first_lane_y_m: float = 0.0
+
+    def lane_of(self, y_m: np.ndarray | float) -> np.ndarray:
+        """:return: the index of the lane whose centre is nearest to ``y_m``."""
+        k = np.rint((np.asarray(y_m, dtype=float) - self.first_lane_y_m) / self.lane_width_m)
+        return np.clip(k, 0, self.n_lanes - 1).astype(int)
+
+
+@dataclass(frozen=True)
+class LaneChange:
+    """A lane change the twin saw.
+
+    :param t_cross_s: time the smoothed track crossed the lane boundary [s]
+    :param from_lane: lane index before
+    :param to_lane: lane index after
+    :param duration_s: fitted duration of the lateral move [s]
+    :param lateral_speed_mps: mean lateral speed, lane width / duration [m/s]
+    :param gap_s: accepted time gap to the new follower [s] (inf when none was seen)
+    :param sudden: whether the change counts as sudden
+    """
+
+    t_cross_s: float
+    from_lane: int
+    to_lane: int
+    duration_s: float
+    lateral_speed_mps: float
+    gap_s: float
+    sudden: bool
+
+
+def moving_average(t_s: np.ndarray, y: np.ndarray, window_s: float) -> np.ndarray:
+    """Centred moving average over a time window (handles uneven sampling).
+
+    :param t_s: sample times, sorted [s]
+    :param y: values
+    :param window_s: full window width [s]
+    :return: smoothed values, same length
+    """
+    if len(y) == 0:
+        return y.astype(float)
+    csum = np.concatenate([[0.0], np.cumsum(y, dtype=float)])
+    lo = np.searchsorted(t_s, t_s - window_s / 2, side="left")
+    hi = np.searchsorted(t_s, t_s + window_s / 2, side="right")
+    return (csum[hi] - csum[lo]) / (hi - lo)
+
+
+def boundary_crossings(
+    t_s: np.ndarray, y_smooth: np.ndarray, road: HighwayMap, hysteresis_m: float
+) -> list[tuple[float, int, int]]:
+    """Lane changes of a smoothed lateral track.
+
+    :return: ``(t_cross_s, from_lane, to_lane)`` for each crossing confirmed by the hysteresis
+    """
+    if len(t_s) == 0:
+        return []
+    w = road.lane_width_m
+    lane = int(road.lane_of(y_smooth[0]))
+    out: list[tuple[float, int, int]] = []
+    for i in range(1, len(t_s)):
+        y = y_smooth[i]
+        upper = road.first_lane_y_m + (lane + 0.5) * w
+        lower = road.first_lane_y_m + (lane - 0.5) * w
+        if lane < road.n_lanes - 1 and y > upper + hysteresis_m:
+            new, boundary = lane + 1, upper
+        elif lane > 0 and y < lower - hysteresis_m:
+            new, boundary = lane - 1, lower
+        else:
+            continue
+        # last sample still on the old side of the boundary, then interpolate the crossing
+        j = i
+        while j > 0 and (y_smooth[j - 1] - boundary) * (new - lane) > 0:
+            j -= 1
+        if j == 0:
+            t_c = float(t_s[0])
+        else:
+            y0, y1 = y_smooth[j - 1] - boundary, y_smooth[j] - boundary
+            frac = y0 / (y0 - y1) if y0 != y1 else 0.0
+            t_c = float(t_s[j - 1] + frac * (t_s[j] - t_s[j - 1]))
+        out.append((t_c, lane, new))
+        lane = new
+    return out
+
+
+_DURATIONS_S = np.geomspace(0.3, 10.0, 48)
+_OFFSETS_S = np.arange(-2.0, 2.0001, 0.05)
+
+
+def fit_ramp(t_s: np.ndarray, y: np.ndarray, t_guess_s: float, dy_m: float) -> tuple[float, float]:
+    """Least-squares fit of a lateral ramp of known height to raw samples.
+
+    :param t_s: sample times [s]
+    :param y: raw lateral positions [m]
+    :param t_guess_s: first guess of the ramp's mid-time [s]
+    :param dy_m: signed height of the ramp (lane offset) [m]
+    :return: ``(t_mid_s, duration_s)``
+    """
+    t0 = t_guess_s + _OFFSETS_S[:, None, None]  # (O, 1, 1)
+    dur = _DURATIONS_S[None, :, None]  # (1, D, 1)
+    r = np.clip((t_s[None, None, :] - t0) / dur + 0.5, 0.0, 1.0) * dy_m  # (O, D, N)
+    resid = y[None, None, :] - r
+    resid -= resid.mean(axis=2, keepdims=True)  # best offset a for each (t0, T)
+    sse = np.einsum("odn,odn->od", resid, resid)
+    o, d = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    return float(t_guess_s + _OFFSETS_S[o]), float(_DURATIONS_S[d])
+
+
+def accepted_gap_s(
+    store: FixStore, vehicle_id: int, t_s: float, x_m: float, to_lane: int, road: HighwayMap,
+    vehicle_length_m: float = 5.0,
+) -> float:
+    """Time gap the new follower is left with, from the other vehicles' own fixes.
+
+    :return: bumper gap / follower speed [s] for the nearest vehicle behind in ``to_lane``
+        at time ``t_s``; ``inf`` when no connected vehicle was there
+    """
+    best = math.inf
+    for other in store.vehicle_ids():
+        if other == vehicle_id:
+            continue
+        h = store.history(other)
+        if len(h) < 2 or not h[0, 0] <= t_s <= h[-1, 0]:
+            continue
+        xo = float(np.interp(t_s, h[:, 0], h[:, 1]))
+        yo = float(np.interp(t_s, h[:, 0], h[:, 2]))
+        if int(road.lane_of(yo)) != to_lane or xo >= x_m:
+            continue
+        vo = max(float(np.interp(t_s, h[:, 0], h[:, 3])), 1.0)
+        best = min(best, max(x_m - xo - vehicle_length_m, 0.0) / vo)
+    return best
+
+
+def posterior_aggressive(n_sudden: int, observed_s: float, cfg: TaggerConfig) -> float:
+    """Posterior probability that a driver is aggressive (Poisson-rate likelihood ratio).
+
+    :param n_sudden: sudden lane changes seen
+    :param observed_s: time the driver was observed [s]
+    :param cfg: tagger configuration (rates, prior)
+    :return: probability in (0, 1)
+    """
+    ra, rn = cfg.rate_aggressive_per_min / 60.0, cfg.rate_normal_per_min / 60.0
+    log_odds = (
+        math.log(cfg.prior_aggressive / (1.0 - cfg.prior_aggressive))
+        + n_sudden * math.log(ra / rn)
+        - (ra - rn) * observed_s
+    )
+    return 1.0 / (1.0 + math.exp(-max(min(log_odds, 50.0), -50.0)))
+
+
+@dataclass
+class DriverRecord:
+    """What the twin knows of one driver (bounded: evidence keeps the last ``max_evidence``).
+
+    :param vehicle_id: stable id
+    :param first_seen_s: twin time of the first fix [s]
+    :param observed_s: time with fixes [s]
+    :param n_lane_changes: lane changes seen
+    :param n_sudden: sudden lane changes seen
+    :param tag: ``"aggressive"`` or ``"normal"``
+    :param confidence: posterior probability of ``tag``
+    :param first_aggressive_s: twin time the tag first became aggressive [s] (or None)
+    :param evidence: the last sudden lane changes (with their times)
+    """
+
+    vehicle_id: int
+    first_seen_s: float
+    observed_s: float = 0.0
+    n_lane_changes: int = 0
+    n_sudden: int = 0
+    tag: str = NORMAL
+    confidence: float = 0.0
+    first_aggressive_s: float | None = None
+    evidence: list[LaneChange] = field(default_factory=list)
+    last_fix_s: float = -math.inf
+    counted_until_s: float = -math.inf
+
+
+class Tagger:
+    """Keeps a :class:`DriverRecord` per vehicle and updates it from the store.
+
+    :param config: tagger configuration
+    :param road: the map (lane geometry)
+    """
+
+    MAX_OBSERVED_GAP_S = 2.0
+    """A silence longer than this between fixes does not count as observed time [s]"""
+    MAX_JUMP_M = 30.0
+    """A move this far from where the last fix and speed predict starts a new track [m]"""
+
+    def __init__(self, config: TaggerConfig, road: HighwayMap) -> None:
+        self.config = config
+        self.road = road
+        self.records: dict[int, DriverRecord] = {}
+        self.on_lane_change: Callable[[int, LaneChange], None] | None = None
+        """Optional callback, called with (vehicle_id, lane change) for every judged change"""
+
+    def record(self, vehicle_id: int, now_s: float) -> DriverRecord:
+        """:return: the record of a vehicle, created (with the prior's tag) when new."""
+        rec = self.records.get(vehicle_id)
+        if rec is None:
+            rec = self.records[vehicle_id] = DriverRecord(vehicle_id, first_seen_s=now_s)
+            self._retag(rec, now_s)
+        return rec
+
+    def update(self, store: FixStore, vehicle_id: int, now_s: float) -> DriverRecord:
+        """Analyse a vehicle's history again and refresh its tag.
+
+        :param store: the fix store
+        :param vehicle_id: the vehicle
+        :param now_s: twin time [s]
+        :return: its record
+        """
+        cfg = self.config
+        rec = self.record(vehicle_id, now_s)
+        h = store.history(vehicle_id)
+        if len(h) == 0:
+            return rec
+        t, x, y = h[:, 0], h[:, 1], h[:, 2]
+        # observed time: new fixes since last update, silences capped
+        new = t[t > rec.last_fix_s]
+        if len(new):
+            prev = np.concatenate([[rec.last_fix_s if math.isfinite(rec.last_fix_s) else new[0]], new[:-1]])
+            rec.observed_s += float(np.minimum(new - prev, self.MAX_OBSERVED_GAP_S).sum())
+            rec.last_fix_s = float(new[-1])
+        # analyse only the newest stretch without silences or jumps (a vehicle may leave and
+        # come back elsewhere)
+        dt = np.diff(t)
+        jump = np.hypot(np.diff(x) - h[1:, 3] * dt, np.diff(y))
+        gaps = np.flatnonzero((dt > self.MAX_OBSERVED_GAP_S) | (jump > self.MAX_JUMP_M))
+        if len(gaps):
+            start = int(gaps[-1]) + 1
+            t, x, y = t[start:], x[start:], y[start:]
+        ys = moving_average(t, y, cfg.smoothing_s)
+        half = cfg.fit_window_s
+        need = min(half, 2.5)
+        crossings = boundary_crossings(t, ys, self.road, cfg.hysteresis_m)
+        for k, (t_c, lane_from, lane_to) in enumerate(crossings):
+            if t_c <= rec.counted_until_s:
+                continue
+            if t[-1] < t_c + need:
+                break  # not enough samples after the crossing yet: judge it at a later update
+            rec.counted_until_s = t_c + 1.0
+            if t_c - t[0] < need:
+                continue  # the history starts in the middle of this lane change
+            # fit window: +-fit_window_s, but never past half-way to a neighbouring crossing
+            # (a driver who goes back and forth would otherwise look like one fast ramp)
+            lo = t_c - half if k == 0 else max(t_c - half, (crossings[k - 1][0] + t_c) / 2)
+            hi = t_c + half if k == len(crossings) - 1 else min(t_c + half, (crossings[k + 1][0] + t_c) / 2)
+            sel = (t >= lo) & (t <= hi)
+            dy = (lane_to - lane_from) * self.road.lane_width_m
+            t_mid, dur = fit_ramp(t[sel], y[sel], t_c, dy)
+            speed = abs(dy) / dur
+            x_c = float(np.interp(t_c, t, x))
+            gap = accepted_gap_s(store, vehicle_id, t_c, x_c, lane_to, self.road)
+            sudden = speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s
+            lc = LaneChange(t_c, lane_from, lane_to, dur, speed, gap, sudden)
+            rec.n_lane_changes += 1
+            if self.on_lane_change is not None:
+                self.on_lane_change(vehicle_id, lc)
+            if sudden:
+                rec.n_sudden += 1
+                rec.evidence.append(lc)
+                del rec.evidence[: -cfg.max_evidence]
+        self._retag(rec, now_s)
+        return rec
+
+    def _retag(self, rec: DriverRecord, now_s: float) -> None:
+        p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)
+        if p >= self.config.threshold:
+            rec.tag, rec.confidence = AGGRESSIVE, p
+            if rec.first_aggressive_s is None:
+                rec.first_aggressive_s = now_s
+        else:
+            rec.tag, rec.confidence = NORMAL, 1.0 - p
