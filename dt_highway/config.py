@@ -122,7 +122,7 @@ class TrafficConfig(_Section):
 
     aggressive_fraction: float = Field(0.2, ge=0, le=1, description="share of aggressive drivers [-]")
     cut_in_rate_per_min: float = Field(
-        3.0, ge=0, description="how often an aggressive driver tries a cut-in [1/min]"
+        4.0, ge=0, description="how often an aggressive driver tries a cut-in (or, with no victim, a lane hop) [1/min]"
     )
     cut_in_gap_m: tuple[float, float] = Field(
         (4.0, 20.0), description="bumper gap ahead of the victim that a cut-in accepts [m]"

@@ -117,6 +117,8 @@ class DTHighwayEnv(HighwayEnv):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
+    POPULATION_STREAM = 0x5EED_D21E
+    """Mixed with the world seed so the population's stream differs from the episode's"""
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         self.dt_config = DTConfig()
@@ -129,7 +131,7 @@ class DTHighwayEnv(HighwayEnv):
         self.sim_time_s = 0.0
         self.twin_offset_s = 0.0
         self._built_for: tuple[str, str] | None = None
-        self._population_seeded = False
+        self._world_seed: int | None = None
         self._events: list[TrafficEvent] = []
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
@@ -173,18 +175,20 @@ class DTHighwayEnv(HighwayEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         """Start an episode.
 
-        The driver population and the twin's memory of it are built at the first reset
-        given a ``seed`` (from ``traffic.population_seed`` when set) and then kept for the
-        env's later episodes, so the twin can know drivers from earlier episodes; they are
-        rebuilt when the traffic or twin configuration changes.
+        A reset **with** a ``seed`` starts the env's world over: the driver population is
+        drawn again from that seed (or from ``traffic.population_seed`` when set) and the
+        twin forgets what it learnt (it reloads ``twin.store.path`` when one is set), so the
+        same seed gives the same episode, byte for byte. A reset **without** a seed continues
+        the world: same drivers, and the twin keeps their evidence and tags when
+        ``twin.store.persist_across_episodes`` is on (the default), as a cloud service would.
 
         :param seed: seed of every random generator of the episode
         :param options: ``{"config": {...}}`` deep-merges a partial configuration first
         :return: observation and info
         """
-        if seed is not None and not self._population_seeded:
+        if seed is not None:
             self._built_for = None
-            self._population_seeded = True
+            self._world_seed = int(seed)
         return super().reset(seed=seed, options=options)
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
@@ -200,7 +204,12 @@ class DTHighwayEnv(HighwayEnv):
         if self.twin is not None:
             self.twin.close()
         tcfg = self.dt_config.traffic
-        pop_seed = tcfg.population_seed if tcfg.population_seed is not None else int(self.np_random.integers(2**63 - 1))
+        if tcfg.population_seed is not None:
+            pop_seed = np.random.SeedSequence(tcfg.population_seed)
+        elif self._world_seed is not None:
+            pop_seed = np.random.SeedSequence([self._world_seed, self.POPULATION_STREAM])
+        else:
+            pop_seed = np.random.SeedSequence()  # unseeded env: fresh entropy
         self.population = DriverPopulation(
             tcfg, self.dt_config.twin.connected_fraction if self.dt_config.twin.enabled else 0.0,
             np.random.default_rng(pop_seed),

@@ -17,6 +17,7 @@ across the episodes of one env): the ego is 0, NPCs are drivers ``1..population_
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -157,7 +158,10 @@ class CutInPolicy:
     Attempts arrive as a Poisson process of rate ``rate_per_min``; an attempt stays open for
     ``patience_s`` until a victim qualifies: a vehicle in a neighbouring lane that this
     driver is just ahead of, with a bumper gap in ``gap_m`` and not much faster than this
-    driver. The ego is chosen with probability ``ego_preference`` when it qualifies.
+    driver. The ego is chosen with probability ``ego_preference`` when it qualifies. An
+    attempt that finds no victim ends in a *lane hop* (weaving): a sudden change into the
+    neighbouring lane with the most room ahead, if the new follower would not have to
+    brake harder than the driver's ``max_braking_imposed_mps2``.
     """
 
     rate_per_min: float
@@ -166,7 +170,8 @@ class CutInPolicy:
     ego_preference: float
     rng: np.random.Generator
     on_cut_in: Callable[[TypedDriverVehicle, Vehicle], None] | None = None
-    patience_s: float = 10.0
+    on_lane_hop: Callable[[TypedDriverVehicle], None] | None = None
+    patience_s: float = 5.0
     next_attempt_s: float = field(default=float("inf"))
 
     def schedule(self, now_s: float) -> None:
@@ -181,6 +186,9 @@ class CutInPolicy:
         if now < self.next_attempt_s or me.lane_index != me.target_lane_index:
             return
         if now > self.next_attempt_s + self.patience_s:
+            # nobody to cut in front of: weave into a neighbouring lane instead, when it is
+            # safe by the driver's own (aggressive) MOBIL criterion
+            self._lane_hop(me)
             self.schedule(now)
             return
         victims = self._candidates(me)
@@ -196,6 +204,21 @@ class CutInPolicy:
         if self.on_cut_in is not None:
             self.on_cut_in(me, victim)
         self.schedule(now)
+
+    def _lane_hop(self, me: TypedDriverVehicle) -> None:
+        best, best_gap = None, -1.0
+        for lane_index in me.road.network.side_lanes(me.lane_index):
+            front, rear = me.road.neighbour_vehicles(me, lane_index)
+            if rear is not None and me.acceleration(ego_vehicle=rear, front_vehicle=me) < -me.LANE_CHANGE_MAX_BRAKING_IMPOSED:
+                continue
+            gap = me.lane_distance_to(front) if front is not None else math.inf
+            if gap > max(self.gap_m[0] + me.LENGTH, best_gap):
+                best, best_gap = lane_index, gap
+        if best is not None:
+            me.target_lane_index = best
+            me.timer = 0.0
+            if self.on_lane_hop is not None:
+                self.on_lane_hop(me)
 
     def _candidates(self, me: TypedDriverVehicle) -> list[Vehicle]:
         side = set(me.road.network.side_lanes(me.lane_index))
@@ -218,7 +241,7 @@ class TrafficEvent:
     """Something that happened in traffic (ground truth, for evaluation and logs).
 
     :param time_s: simulation time [s]
-    :param kind: ``"cut_in"``, ``"spawn"``, ``"despawn"``
+    :param kind: ``"cut_in"``, ``"lane_hop"``, ``"spawn"``, ``"despawn"``
     :param vehicle_id: the acting vehicle
     :param other_id: the victim of a cut-in, else -1
     :param driver_type: the acting vehicle's true driver type
@@ -257,6 +280,8 @@ class TrafficManager:
         self.events: list[TrafficEvent] = []
         self._crash_time: dict[int, float] = {}
         self._left_at: dict[int, float] = {}
+        self._owed_ahead = 0
+        self._owed_behind = 0
 
     # ------------------------------------------------------------------ creation
     def make_vehicle(self, road: Road, driver: Driver, lane_index, x_m: float, speed_mps: float) -> TypedDriverVehicle:
@@ -282,12 +307,16 @@ class TrafficManager:
                 ego_preference=self.config.cut_in_ego_preference,
                 rng=self.rng,
                 on_cut_in=self._record_cut_in,
+                on_lane_hop=self._record_lane_hop,
             )
             v.cut_in.schedule(self.time_s)
         return v
 
     def _record_cut_in(self, me: TypedDriverVehicle, victim: Vehicle) -> None:
         self.events.append(TrafficEvent(self.time_s, "cut_in", me.dt_id, vehicle_id(victim), me.dt_driver_type))
+
+    def _record_lane_hop(self, me: TypedDriverVehicle) -> None:
+        self.events.append(TrafficEvent(self.time_s, "lane_hop", me.dt_id, -1, me.dt_driver_type))
 
     def _free_drivers(self, road: Road) -> list[int]:
         on_road = {vehicle_id(v) for v in road.vehicles}
@@ -355,14 +384,16 @@ class TrafficManager:
                 self._leave(v)
                 continue
             keep.append(v)
-        if removed_behind == removed_ahead == 0:
-            return
-        road.vehicles[:] = keep
-        # vehicles that fell behind re-enter ahead, and the other way round
-        for _ in range(removed_behind):
-            self._spawn_at_edge(road, ego, ahead=True)
-        for _ in range(removed_ahead):
-            self._spawn_at_edge(road, ego, ahead=False)
+        if removed_behind or removed_ahead:
+            road.vehicles[:] = keep
+        # vehicles that fell behind re-enter ahead, and the other way round; an entry that
+        # finds no room (or no free driver) is retried at the next step
+        self._owed_ahead += removed_behind
+        self._owed_behind += removed_ahead
+        while self._owed_ahead and self._spawn_at_edge(road, ego, ahead=True):
+            self._owed_ahead -= 1
+        while self._owed_behind and self._spawn_at_edge(road, ego, ahead=False):
+            self._owed_behind -= 1
 
     def _spawn_at_edge(self, road: Road, ego: Vehicle, ahead: bool) -> bool:
         free = self._free_drivers(road)

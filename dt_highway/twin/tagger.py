@@ -61,8 +61,8 @@ class LaneChange:
     :param t_cross_s: time the smoothed track crossed the lane boundary [s]
     :param from_lane: lane index before
     :param to_lane: lane index after
-    :param duration_s: fitted duration of the lateral move [s]
-    :param lateral_speed_mps: mean lateral speed, lane width / duration [m/s]
+    :param duration_s: fitted duration of the lateral move [s] (NaN: too few fixes to time it)
+    :param lateral_speed_mps: mean lateral speed, lane width / duration [m/s] (NaN likewise)
     :param gap_s: accepted time gap to the new follower [s] (inf when none was seen)
     :param sudden: whether the change counts as sudden
     """
@@ -231,6 +231,10 @@ class Tagger:
 
     MAX_OBSERVED_GAP_S = 2.0
     """A silence longer than this between fixes does not count as observed time [s]"""
+    MIN_SMOOTHING_SAMPLES = 5
+    """The smoothing window spans at least this many fixes (matters at low fix rates)"""
+    MIN_FIT_SAMPLES = 4
+    """Fewest fixes in the fit window to estimate a lane change's lateral speed"""
     MAX_JUMP_M = 30.0
     """A move this far from where the last fix and speed predict starts a new track [m]"""
 
@@ -272,12 +276,18 @@ class Tagger:
         # analyse only the newest stretch without silences or jumps (a vehicle may leave and
         # come back elsewhere)
         dt = np.diff(t)
+        max_gap = max(self.MAX_OBSERVED_GAP_S, 3.0 * float(np.median(dt))) if len(dt) else self.MAX_OBSERVED_GAP_S
         jump = np.hypot(np.diff(x) - h[1:, 3] * dt, np.diff(y))
-        gaps = np.flatnonzero((dt > self.MAX_OBSERVED_GAP_S) | (jump > self.MAX_JUMP_M))
+        gaps = np.flatnonzero((dt > max_gap) | (jump > self.MAX_JUMP_M))
         if len(gaps):
             start = int(gaps[-1]) + 1
             t, x, y = t[start:], x[start:], y[start:]
-        ys = moving_average(t, y, cfg.smoothing_s)
+        if len(t) < 2:
+            self._retag(rec, now_s)
+            return rec
+        # at low fix rates, average at least MIN_SMOOTHING_SAMPLES fixes
+        window = max(cfg.smoothing_s, self.MIN_SMOOTHING_SAMPLES * float(np.median(np.diff(t))))
+        ys = moving_average(t, y, window)
         half = cfg.fit_window_s
         need = min(half, 2.5)
         crossings = boundary_crossings(t, ys, self.road, cfg.hysteresis_m)
@@ -295,11 +305,14 @@ class Tagger:
             hi = t_c + half if k == len(crossings) - 1 else min(t_c + half, (crossings[k + 1][0] + t_c) / 2)
             sel = (t >= lo) & (t <= hi)
             dy = (lane_to - lane_from) * self.road.lane_width_m
-            t_mid, dur = fit_ramp(t[sel], y[sel], t_c, dy)
-            speed = abs(dy) / dur
+            if sel.sum() >= self.MIN_FIT_SAMPLES:
+                _, dur = fit_ramp(t[sel], y[sel], t_c, dy)
+                speed = abs(dy) / dur
+            else:  # too few fixes to time the move: only the accepted gap can tell
+                dur, speed = math.nan, math.nan
             x_c = float(np.interp(t_c, t, x))
             gap = accepted_gap_s(store, vehicle_id, t_c, x_c, lane_to, self.road)
-            sudden = speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s
+            sudden = bool(speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s)
             lc = LaneChange(t_c, lane_from, lane_to, dur, speed, gap, sudden)
             rec.n_lane_changes += 1
             if self.on_lane_change is not None:

@@ -1,0 +1,20 @@
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import pytest  # noqa: E402
+
+#: a small, fast scenario for tests (few vehicles, short episode and pre-roll)
+SMALL = {
+    "highway": {"vehicles_count": 12, "duration": 6.0, "lanes_count": 3},
+    "traffic": {"population_size": 60},
+    "twin": {"preroll_s": 5.0},
+}
+
+
+@pytest.fixture
+def small_config() -> dict:
+    import copy
+
+    return copy.deepcopy(SMALL)

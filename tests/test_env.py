@@ -1,0 +1,182 @@
+"""The dt-highway-v0 env: registration, API checks, determinism, ids, info, memory."""
+
+import gc
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import dt_highway  # noqa: F401
+from dt_highway.env import DTHighwayEnv
+from dt_highway.traffic import AGGRESSIVE, NORMAL
+
+
+def _make(cfg, **kw):
+    return gym.make("dt-highway-v0", config=cfg, **kw)
+
+
+def test_registered_and_subclass_of_highway_env(small_config):
+    from highway_env.envs.highway_env import HighwayEnv
+
+    env = _make(small_config)
+    assert isinstance(env.unwrapped, DTHighwayEnv)
+    assert isinstance(env.unwrapped, HighwayEnv)
+    env.close()
+
+
+def test_gymnasium_check_env(small_config):
+    from gymnasium.utils.env_checker import check_env
+
+    env = _make(small_config)
+    check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+def test_sb3_check_env(small_config):
+    from stable_baselines3.common.env_checker import check_env
+
+    env = _make(small_config)
+    check_env(env, warn=True)
+    env.close()
+
+
+def _trace(cfg, seed, steps=6):
+    env = _make(cfg)
+    obs, info = env.reset(seed=seed)
+    out = {"obs": [obs], "pos": [], "twin": [], "tags": []}
+    for _ in range(steps):
+        obs, r, term, trunc, info = env.step(1)
+        u = env.unwrapped
+        out["obs"].append(obs)
+        out["pos"].append(sorted((v.dt_id, tuple(np.round(v.position, 9))) for v in u.road.vehicles))
+        out["twin"].append(info["twin"])
+        out["tags"].append(sorted((vid, r.tag, r.n_sudden, round(r.confidence, 12)) for vid, r in u.twin.tagger.records.items()))
+        if term or trunc:
+            break
+    env.close()
+    return out
+
+
+def test_same_seed_same_everything(small_config):
+    a, b = _trace(small_config, 7), _trace(small_config, 7)
+    assert a["pos"] == b["pos"]
+    assert a["twin"] == b["twin"]
+    assert a["tags"] == b["tags"]
+    assert all(np.array_equal(x, y) for x, y in zip(a["obs"], b["obs"]))
+    c = _trace(small_config, 8)
+    assert a["pos"] != c["pos"]
+
+
+def test_ids_are_stable_and_unique(small_config):
+    env = _make(small_config)
+    env.reset(seed=0)
+    u = env.unwrapped
+    ids_by_object = {id(v): v.dt_id for v in u.road.vehicles}
+    for _ in range(5):
+        env.step(1)
+        ids = [v.dt_id for v in u.road.vehicles]
+        assert len(ids) == len(set(ids))
+        for v in u.road.vehicles:
+            if id(v) in ids_by_object:
+                assert ids_by_object[id(v)] == v.dt_id
+    assert u.vehicle.dt_id == 0
+    env.close()
+
+
+def test_info_keeps_ground_truth_apart(small_config):
+    env = _make(small_config)
+    _, info = env.reset(seed=1)
+    _, _, _, _, info = env.step(1)
+    assert set(info) >= {"speed", "crashed", "time_s", "ego", "twin", "ground_truth"}
+    assert info["twin"], "the twin view should reach the ego after the pre-roll"
+    for entry in info["twin"]:
+        assert "driver_type" not in entry
+        assert entry["tag"] in (AGGRESSIVE, NORMAL)
+        assert 0.0 <= entry["confidence"] <= 1.0
+        assert entry["age_s"] >= 0.0
+    truth = info["ground_truth"]["vehicles"]
+    assert {t["driver_type"] for t in truth.values()} <= {AGGRESSIVE, NORMAL}
+    env.close()
+
+
+def test_twin_tag_observation(small_config):
+    small_config["twin"]["in_observation"] = True
+    env = _make(small_config)
+    obs, _ = env.reset(seed=2)
+    assert obs.shape == (5, 7)
+    assert env.observation_space.contains(obs)
+    obs, *_ = env.step(1)
+    known, p = obs[1:, 5], obs[1:, 6]
+    assert set(np.unique(known)) <= {0.0, 1.0}
+    assert known.sum() >= 1  # at least one neighbour associated with the twin's view
+    assert np.all((p >= 0) & (p <= 1))
+    env.close()
+
+
+def test_subproc_vec_env_with_module_id(small_config):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    venv = make_vec_env("dt_highway:dt-highway-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv,
+                        env_kwargs={"config": small_config})
+    obs = venv.reset()
+    assert obs.shape == (2, 5, 5)
+    obs, rewards, dones, infos = venv.step(np.array([1, 1]))
+    assert len(infos) == 2 and "twin" in infos[0]
+    venv.close()
+
+
+def test_population_persists_across_episodes(small_config):
+    env = _make(small_config)
+    env.reset(seed=3)
+    u = env.unwrapped
+    pop = u.population
+    for _ in range(3):
+        env.step(1)
+    n_records = len(u.twin.tagger.records)
+    env.reset()
+    assert u.population is pop
+    assert len(u.twin.tagger.records) >= n_records  # the twin remembers the drivers
+    small_config["twin"]["store"] = {"persist_across_episodes": False}
+    env2 = _make(small_config)
+    env2.reset(seed=3)
+    for _ in range(3):
+        env2.step(1)
+    env2.unwrapped._reset_count = 0
+    env2.reset()
+    assert len(env2.unwrapped.twin.tagger.records) <= len(env2.unwrapped.road.vehicles) + 5
+    env.close()
+    env2.close()
+
+
+def test_long_run_memory_stays_flat():
+    """20 minutes of simulated time: the twin's store, its records, the traffic and the
+    number of live Python objects stay bounded (``dt-highway bench memory`` runs hours)."""
+    cfg = {
+        "highway": {"vehicles_count": 12, "lanes_count": 3, "duration": 4000.0, "simulation_frequency": 5},
+        "ego": {"autopilot": True},
+        "traffic": {"population_size": 40},
+        "twin": {"preroll_s": 0.0, "uplink": {"rate_hz": 5.0}},
+    }
+    env = DTHighwayEnv(config=cfg)
+    env.reset(seed=0)
+    objects = {}
+    for minute in range(20):
+        for _ in range(60):
+            env.step(0)
+        if minute in (4, 19):
+            gc.collect()
+            objects[minute] = len(gc.get_objects())
+        assert env.twin.store.n_fixes() <= (12 + 1 + 5) * 5.0 * 30.0 * 1.1
+        assert len(env.twin.tagger.records) <= 41
+        assert len(env.road.vehicles) == 13
+        assert env.twin.n_pending() < 13 * 5
+    growth = objects[19] - objects[4]
+    assert growth < 0.02 * objects[4], f"{growth} more live objects after 15 more minutes"
+    env.close()
+
+
+@pytest.mark.parametrize("bad", ["fast", 3])
+def test_bad_render_mode(bad):
+    with pytest.raises(ValueError, match="render_mode"):
+        DTHighwayEnv(render_mode=bad)
