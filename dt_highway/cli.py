@@ -118,6 +118,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- bench
+def cmd_bench_memory(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_memory
+
+    cfg = _config(args)
+    steps = int(args.hours * 3600 * cfg.highway.policy_frequency)
+    with _progress(steps, "bench memory", args.quiet or args.json) as bar:
+        result = bench_memory(cfg, args.hours, args.every_min, progress=bar.update)
+    if args.json:
+        print(dump_json(result))
+    else:
+        for s in result["samples"]:
+            print(f"{s['sim_time_min']:8.1f} min  rss {s['rss_mb']:8.1f} MB  objects {s['live_objects']:8d}  "
+                  f"fixes {s['twin_fixes_held']:6d}  records {s['twin_records']:4d}  vehicles {s['vehicles']}")
+        print(f"RSS growth after warm-up: {result['rss_growth_mb_after_warmup']} MB over {args.hours} h simulated "
+              f"({result['sim_seconds_per_wall_second']} sim s per wall s)")
+    return 0
+
+
 # ----------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     from dt_highway import __version__
@@ -147,6 +166,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_twin_eval)
+
+    bench = sub.add_parser("bench", help="benchmarks that print numbers")
+    bsub = bench.add_subparsers(dest="bench", metavar="BENCH")
+    bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
+    p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
+    _add_config_args(p)
+    p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")
+    p.add_argument("--every-min", type=_positive(float, "--every-min"), default=10.0,
+                   help="sample every this many simulated minutes (default 10)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench_memory)
     return parser
 
 

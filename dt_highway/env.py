@@ -31,7 +31,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from scipy.optimize import linear_sum_assignment
 
-from dt_highway.config import DTConfig, merge
+from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.traffic import (
     EGO_ID,
     DriverPopulation,
@@ -165,8 +165,6 @@ class DTHighwayEnv(HighwayEnv):
         if self.dt_config.twin.in_observation:
             obs_cfg = dict(self.config["observation"])
             if obs_cfg.pop("type", "Kinematics") != "Kinematics":
-                from dt_highway.config import ConfigError
-
                 raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
             self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
             self.observation_space = self.observation_type.space()
