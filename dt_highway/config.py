@@ -47,6 +47,8 @@ class HighwayConfig(_Section):
     road_length: float = Field(1.0e6, gt=100, description="length of the straight road [m]")
     initial_lane_id: int | None = Field(None, ge=0, description="ego's starting lane (None: random)")
     ego_speed: float = Field(25.0, ge=0, le=40, description="ego's initial speed [m/s]")
+    ego_spacing: float = Field(2.0, gt=0, description="stock traffic only: ego spacing ratio [-]")
+    vehicles_density: float = Field(1.0, gt=0, description="stock traffic only: NPC density ratio [-]")
     observation: dict[str, Any] = Field(default_factory=lambda: {"type": "Kinematics"})
     action: dict[str, Any] = Field(default_factory=lambda: {"type": "DiscreteMetaAction"})
     collision_reward: float = -1.0
@@ -130,6 +132,11 @@ class TrafficConfig(_Section):
     cut_in_range_m: float = Field(
         60.0, gt=0, description="cut-ins look for a victim within this distance behind [m]"
     )
+    cut_in_chase_s: float = Field(
+        0.0, ge=0, le=120,
+        description="an open attempt may spend this long positioning itself just ahead of the ego "
+        "(0: aggressive drivers do not seek the ego out) [s]",
+    )
     cut_in_ego_preference: float = Field(
         0.7, ge=0, le=1, description="probability that a cut-in picks the ego when it is a candidate [-]"
     )
@@ -192,7 +199,11 @@ class StoreConfig(_Section):
     persist_across_episodes: bool = Field(
         True, description="keep each driver's evidence and tag across resets of one env"
     )
-    path: str | None = Field(None, description="SQLite file that keeps evidence across processes")
+    path: str | None = Field(
+        None,
+        description="SQLite file that keeps the drivers' evidence across processes "
+        "(set traffic.population_seed too, so that the ids mean the same drivers)",
+    )
 
 
 class TaggerConfig(_Section):

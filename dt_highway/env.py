@@ -130,7 +130,7 @@ class DTHighwayEnv(HighwayEnv):
         self.twin_view: TwinView | None = None
         self.sim_time_s = 0.0
         self.twin_offset_s = 0.0
-        self._built_for: tuple[str, str] | None = None
+        self._built_for: tuple[str, str, int] | None = None
         self._world_seed: int | None = None
         self._events: list[TrafficEvent] = []
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -196,7 +196,11 @@ class DTHighwayEnv(HighwayEnv):
 
     def _build_persistent(self) -> None:
         """Population and twin live across episodes; rebuilt only when their config changes."""
-        key = (self.dt_config.traffic.model_dump_json(), self.dt_config.twin.model_dump_json())
+        key = (
+            self.dt_config.traffic.model_dump_json(),
+            self.dt_config.twin.model_dump_json(),
+            self.dt_config.highway.lanes_count,
+        )
         if key == self._built_for:
             return
         if self.twin is not None:
@@ -215,7 +219,6 @@ class DTHighwayEnv(HighwayEnv):
         hw = self.dt_config.highway
         self.road_map = HighwayMap(StraightLane.DEFAULT_WIDTH, hw.lanes_count)
         self.twin = CloudTwin(self.dt_config.twin, self.road_map) if self.dt_config.twin.enabled else None
-        self.twin_offset_s = self.twin.now_s if self.twin is not None else 0.0
         self._built_for = key
 
     def _reset(self) -> None:

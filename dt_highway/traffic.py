@@ -158,7 +158,9 @@ class CutInPolicy:
     Attempts arrive as a Poisson process of rate ``rate_per_min``; an attempt stays open for
     ``patience_s`` until a victim qualifies: a vehicle in a neighbouring lane that this
     driver is just ahead of, with a bumper gap in ``gap_m`` and not much faster than this
-    driver. The ego is chosen with probability ``ego_preference`` when it qualifies. An
+    driver. The ego is chosen with probability ``ego_preference`` when it qualifies, and
+    while an attempt is open a driver within ``search_range_m`` of the ego adjusts its
+    speed to reach the window just ahead of it (for up to ``chase_patience_s``). An
     attempt that finds no victim ends in a *lane hop* (weaving): a sudden change into the
     neighbouring lane with the most room ahead, if the new follower would not have to
     brake harder than the driver's ``max_braking_imposed_mps2``.
@@ -172,7 +174,12 @@ class CutInPolicy:
     on_cut_in: Callable[[TypedDriverVehicle, Vehicle], None] | None = None
     on_lane_hop: Callable[[TypedDriverVehicle], None] | None = None
     patience_s: float = 5.0
+    chase_patience_s: float = 0.0
     next_attempt_s: float = field(default=float("inf"))
+    desired_speed_mps: float | None = None
+
+    CHASE_SPEED_MPS = 5.0
+    """How much faster than the ego a driver who wants to cut in front of it goes [m/s]"""
 
     def schedule(self, now_s: float) -> None:
         """Draw the time of the next attempt after ``now_s`` [s]."""
@@ -185,11 +192,12 @@ class CutInPolicy:
         now = me.clock_s
         if now < self.next_attempt_s or me.lane_index != me.target_lane_index:
             return
-        if now > self.next_attempt_s + self.patience_s:
+        chasing = self._chase_ego(me)
+        if now > self.next_attempt_s + (self.chase_patience_s if chasing else self.patience_s):
             # nobody to cut in front of: weave into a neighbouring lane instead, when it is
             # safe by the driver's own (aggressive) MOBIL criterion
             self._lane_hop(me)
-            self.schedule(now)
+            self._end_attempt(me, now)
             return
         victims = self._candidates(me)
         if not victims:
@@ -203,7 +211,41 @@ class CutInPolicy:
         me.timer = 0.0
         if self.on_cut_in is not None:
             self.on_cut_in(me, victim)
+        self._end_attempt(me, now)
+
+    def _end_attempt(self, me: TypedDriverVehicle, now: float) -> None:
+        if self.desired_speed_mps is not None:
+            me.target_speed = self.desired_speed_mps
+            self.desired_speed_mps = None
         self.schedule(now)
+
+    def _chase_ego(self, me: TypedDriverVehicle) -> bool:
+        """With an open attempt and the ego within ``search_range_m`` in this or a
+        neighbouring lane, adjust speed to reach the cut-in window just ahead of the ego:
+        faster when behind it (MOBIL takes the driver out of the ego's own lane), slower
+        when too far ahead in a neighbouring lane. :return: whether positioning."""
+        if self.ego_preference <= 0 or self.chase_patience_s <= 0:
+            return False
+        ego = next((v for v in me.road.vehicles if vehicle_id(v) == EGO_ID), None)
+        if ego is None or ego.crashed:
+            return False
+        same_lane = ego.lane_index == me.lane_index
+        if not same_lane and ego.lane_index not in me.road.network.side_lanes(me.lane_index):
+            return False
+        dx = me.position[0] - ego.position[0]
+        lo = self.gap_m[0] + (me.LENGTH + ego.LENGTH) / 2
+        hi = self.gap_m[1] + (me.LENGTH + ego.LENGTH) / 2
+        if not -self.search_range_m < dx < self.search_range_m or (same_lane and dx > 0):
+            return False
+        if self.desired_speed_mps is None:
+            self.desired_speed_mps = me.target_speed
+        if dx < lo:
+            me.target_speed = max(self.desired_speed_mps, ego.speed + self.CHASE_SPEED_MPS)
+        elif dx > hi:
+            me.target_speed = max(ego.speed - self.CHASE_SPEED_MPS / 2, 5.0)
+        else:
+            me.target_speed = ego.speed + 1.0
+        return True
 
     def _lane_hop(self, me: TypedDriverVehicle) -> None:
         best, best_gap = None, -1.0
@@ -305,6 +347,7 @@ class TrafficManager:
                 gap_m=self.config.cut_in_gap_m,
                 search_range_m=self.config.cut_in_range_m,
                 ego_preference=self.config.cut_in_ego_preference,
+                chase_patience_s=self.config.cut_in_chase_s,
                 rng=self.rng,
                 on_cut_in=self._record_cut_in,
                 on_lane_hop=self._record_lane_hop,

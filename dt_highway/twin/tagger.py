@@ -233,6 +233,8 @@ class Tagger:
     """A silence longer than this between fixes does not count as observed time [s]"""
     MIN_SMOOTHING_SAMPLES = 5
     """The smoothing window spans at least this many fixes (matters at low fix rates)"""
+    HYSTERESIS_SIGMAS = 2.5
+    """How many standard deviations of the smoothed lateral position a crossing must exceed"""
     MIN_FIT_SAMPLES = 4
     """Fewest fixes in the fit window to estimate a lane change's lateral speed"""
     MAX_JUMP_M = 30.0
@@ -290,7 +292,7 @@ class Tagger:
         ys = moving_average(t, y, window)
         half = cfg.fit_window_s
         need = min(half, 2.5)
-        crossings = boundary_crossings(t, ys, self.road, cfg.hysteresis_m)
+        crossings = boundary_crossings(t, ys, self.road, self._hysteresis_m(t, y, window))
         for k, (t_c, lane_from, lane_to) in enumerate(crossings):
             if t_c <= rec.counted_until_s:
                 continue
@@ -323,6 +325,21 @@ class Tagger:
                 del rec.evidence[: -cfg.max_evidence]
         self._retag(rec, now_s)
         return rec
+
+    def _hysteresis_m(self, t: np.ndarray, y: np.ndarray, window_s: float) -> float:
+        """Lane-boundary hysteresis, raised on noisy tracks.
+
+        The GNSS noise of the track is estimated from its fix-to-fix differences (robust:
+        MAD, which ignores the few samples of a lane change); a crossing must then exceed
+        ``HYSTERESIS_SIGMAS`` standard deviations of the smoothed position, and at least
+        ``hysteresis_m``. With poor fixes the twin thus misses lane changes rather than
+        inventing them.
+        """
+        if len(y) < 3:
+            return self.config.hysteresis_m
+        sigma = 1.4826 * float(np.median(np.abs(np.diff(y)))) / math.sqrt(2.0)
+        n = max(1.0, window_s / float(np.median(np.diff(t))))
+        return max(self.config.hysteresis_m, self.HYSTERESIS_SIGMAS * sigma / math.sqrt(n))
 
     def _retag(self, rec: DriverRecord, now_s: float) -> None:
         p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)

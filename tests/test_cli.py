@@ -1,0 +1,57 @@
+"""End-to-end runs of each command on small inputs."""
+
+import json
+import subprocess
+import sys
+
+from dt_highway.cli import main
+
+TINY = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=4", "--set", "twin.preroll_s=4",
+        "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40"]
+
+
+def test_help_lists_commands(capsys):
+    proc = subprocess.run([sys.executable, "-m", "dt_highway.cli", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0
+    for cmd in ("run", "twin-eval", "bench"):
+        assert cmd in proc.stdout
+
+
+def test_twin_eval_json(capsys):
+    assert main(["twin-eval", "--episodes", "1", "--seed", "3", "--json", "--min-observed-s", "1", *TINY]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("precision", "recall", "median_time_to_tag_s", "n_aggressive", "n_normal"):
+        assert key in result
+    assert result["n_aggressive"] + result["n_normal"] > 0
+    assert result["settings"]["noise_sigma_m"] == 1.0
+
+
+def test_run_writes_its_outputs(tmp_path, capsys):
+    out = tmp_path / "quick"
+    assert main(["run", "--episodes", "1", "--out", str(out), "--quiet", *TINY]) == 0
+    printed = capsys.readouterr().out
+    assert str(out / "twin_eval.json") in printed
+    assert json.loads((out / "config.json").read_text())["highway"]["vehicles_count"] == 10
+    assert "precision" in json.loads((out / "twin_eval.json").read_text())
+
+
+def test_bench_memory_prints_numbers(capsys):
+    args = ["bench", "memory", "--hours", "0.02", "--every-min", "0.4", "--json", *TINY]
+    assert main(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert len(result["samples"]) >= 2
+    assert result["samples"][-1]["rss_mb"] > 0
+
+
+def test_bad_numbers_on_the_command_line(capsys):
+    proc = subprocess.run([sys.executable, "-m", "dt_highway.cli", "twin-eval", "--episodes", "0"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "--episodes must be > 0" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_unknown_scenario_file(capsys):
+    assert main(["twin-eval", "--scenario", "envs/nope.toml", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not exist" in err[0]

@@ -1,0 +1,53 @@
+"""Driver types: the population, gentle vs sudden lane changes, cut-ins in front of the ego."""
+
+import numpy as np
+
+from dt_highway.config import TrafficConfig, load_config
+from dt_highway.env import DTHighwayEnv
+from dt_highway.traffic import AGGRESSIVE, NORMAL, DriverPopulation
+
+
+def test_population_share_is_exact_and_seeded():
+    cfg = TrafficConfig(population_size=200, aggressive_fraction=0.25)
+    a = DriverPopulation(cfg, 0.5, np.random.default_rng(0))
+    b = DriverPopulation(cfg, 0.5, np.random.default_rng(0))
+    types = [d.driver_type for d in a.drivers.values()]
+    assert types.count(AGGRESSIVE) == 50 and types.count(NORMAL) == 150
+    assert sum(d.connected for d in a.drivers.values()) == 100
+    assert [d.driver_type for d in b.drivers.values()] == types
+
+
+def test_lateral_speeds_by_driver_type():
+    env = DTHighwayEnv(config={"ego": {"autopilot": True}, "highway": {"duration": 60, "lanes_count": 3},
+                               "twin": {"preroll_s": 0}})
+    env.reset(seed=4)
+    peak = {NORMAL: 0.0, AGGRESSIVE: 0.0}
+    for _ in range(40):
+        env.step(0)
+        for v in env.road.vehicles:
+            t = getattr(v, "dt_driver_type", None)
+            if t in peak and not v.crashed:
+                peak[t] = max(peak[t], abs(float(v.velocity[1])))
+    assert peak[NORMAL] <= 1.1  # gentle lane changes only
+    assert peak[AGGRESSIVE] >= 2.5  # sudden ones happen
+    env.close()
+
+
+def test_trial_scenario_cuts_into_the_ego_lane_several_times_a_minute():
+    from pathlib import Path
+
+    scenario = Path(__file__).resolve().parents[1] / "envs" / "highway-trial.toml"
+    cfg = load_config(scenario, ["ego.autopilot=true", "twin.preroll_s=0", "highway.duration=60"])
+    cut_ins_on_ego, minutes = 0, 0.0
+    for seed in (1, 2):
+        env = DTHighwayEnv(config=cfg.to_dict())
+        env.reset(seed=seed)
+        done = False
+        while not done:
+            _, _, term, trunc, info = env.step(0)
+            events = info["ground_truth"]["events"]
+            cut_ins_on_ego += sum(e["kind"] == "cut_in" and e["other_id"] == 0 for e in events)
+            done = term or trunc
+        minutes += info["time_s"] / 60.0
+        env.close()
+    assert cut_ins_on_ego / minutes >= 3.0, f"{cut_ins_on_ego} cut-ins in front of the ego in {minutes:.1f} min"
