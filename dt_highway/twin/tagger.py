@@ -63,7 +63,8 @@ class LaneChange:
     :param to_lane: lane index after
     :param duration_s: fitted duration of the lateral move [s] (NaN: too few fixes to time it)
     :param lateral_speed_mps: mean lateral speed, lane width / duration [m/s] (NaN likewise)
-    :param gap_s: accepted time gap to the new follower [s] (inf when none was seen)
+    :param gap_s: accepted time gap to the new follower [s] (inf when none was seen, NaN when
+        the fixes are too noisy to tell lanes apart)
     :param sudden: whether the change counts as sudden
     """
 
@@ -234,7 +235,14 @@ class Tagger:
     MIN_SMOOTHING_SAMPLES = 5
     """The smoothing window spans at least this many fixes (matters at low fix rates)"""
     HYSTERESIS_SIGMAS = 2.5
-    """How many standard deviations of the smoothed lateral position a crossing must exceed"""
+    """A crossing must exceed this many standard deviations of the smoothed lateral position
+    (and at least ``hysteresis_m``): with poor fixes the twin misses lane changes rather
+    than inventing them"""
+    MIN_INTERVALS_PER_MOVE = 3.0
+    """The lateral speed is judged only if a move at the sudden threshold spans this many fix
+    intervals (at 1 Hz it does not: only the gap criterion is left)"""
+    GAP_MAX_SIGMA_M = 0.5
+    """The gap criterion is used only if the smoothed lateral position is this precise [m]"""
     MIN_FIT_SAMPLES = 4
     """Fewest fixes in the fit window to estimate a lane change's lateral speed"""
     MAX_JUMP_M = 30.0
@@ -292,7 +300,14 @@ class Tagger:
         ys = moving_average(t, y, window)
         half = cfg.fit_window_s
         need = min(half, 2.5)
-        crossings = boundary_crossings(t, ys, self.road, self._hysteresis_m(t, y, window))
+        dt_fix = float(np.median(np.diff(t)))
+        sigma_smoothed = self._smoothed_sigma_m(t, y, window)
+        hysteresis = max(cfg.hysteresis_m, self.HYSTERESIS_SIGMAS * sigma_smoothed)
+        # what these fixes can tell: a move as short as the sudden threshold must span
+        # several fix intervals to be timed; gaps need lanes that are told apart reliably
+        can_time = self.road.lane_width_m / cfg.sudden_lateral_speed_mps >= self.MIN_INTERVALS_PER_MOVE * dt_fix
+        can_gap = sigma_smoothed <= self.GAP_MAX_SIGMA_M
+        crossings = boundary_crossings(t, ys, self.road, hysteresis)
         for k, (t_c, lane_from, lane_to) in enumerate(crossings):
             if t_c <= rec.counted_until_s:
                 continue
@@ -307,14 +322,14 @@ class Tagger:
             hi = t_c + half if k == len(crossings) - 1 else min(t_c + half, (crossings[k + 1][0] + t_c) / 2)
             sel = (t >= lo) & (t <= hi)
             dy = (lane_to - lane_from) * self.road.lane_width_m
-            if sel.sum() >= self.MIN_FIT_SAMPLES:
+            if can_time and sel.sum() >= self.MIN_FIT_SAMPLES:
                 _, dur = fit_ramp(t[sel], y[sel], t_c, dy)
                 speed = abs(dy) / dur
             else:  # too few fixes to time the move: only the accepted gap can tell
                 dur, speed = math.nan, math.nan
             x_c = float(np.interp(t_c, t, x))
-            gap = accepted_gap_s(store, vehicle_id, t_c, x_c, lane_to, self.road)
-            sudden = bool(speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s)
+            gap = accepted_gap_s(store, vehicle_id, t_c, x_c, lane_to, self.road) if can_gap else math.nan
+            sudden = bool(speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s)  # NaN compares False
             lc = LaneChange(t_c, lane_from, lane_to, dur, speed, gap, sudden)
             rec.n_lane_changes += 1
             if self.on_lane_change is not None:
@@ -326,20 +341,19 @@ class Tagger:
         self._retag(rec, now_s)
         return rec
 
-    def _hysteresis_m(self, t: np.ndarray, y: np.ndarray, window_s: float) -> float:
-        """Lane-boundary hysteresis, raised on noisy tracks.
+    @staticmethod
+    def _smoothed_sigma_m(t: np.ndarray, y: np.ndarray, window_s: float) -> float:
+        """Standard deviation of the smoothed lateral position [m], from the track itself.
 
-        The GNSS noise of the track is estimated from its fix-to-fix differences (robust:
-        MAD, which ignores the few samples of a lane change); a crossing must then exceed
-        ``HYSTERESIS_SIGMAS`` standard deviations of the smoothed position, and at least
-        ``hysteresis_m``. With poor fixes the twin thus misses lane changes rather than
-        inventing them.
+        The GNSS noise is estimated from the fix-to-fix differences (robust: the median
+        absolute difference ignores the few samples of a lane change) and divided by the
+        square root of the number of fixes the smoothing window averages.
         """
         if len(y) < 3:
-            return self.config.hysteresis_m
+            return 0.0
         sigma = 1.4826 * float(np.median(np.abs(np.diff(y)))) / math.sqrt(2.0)
         n = max(1.0, window_s / float(np.median(np.diff(t))))
-        return max(self.config.hysteresis_m, self.HYSTERESIS_SIGMAS * sigma / math.sqrt(n))
+        return sigma / math.sqrt(n)
 
     def _retag(self, rec: DriverRecord, now_s: float) -> None:
         p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)
