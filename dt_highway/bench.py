@@ -35,12 +35,13 @@ def bench_memory(
     """
     from dt_highway.env import DTHighwayEnv
 
-    seconds = hours * 3600.0
+    freq = config.highway.policy_frequency
+    steps_per_sample = max(1, int(round(sample_every_min * 60 * freq)))
+    n_samples = max(2, int(round(hours * 3600.0 * freq / steps_per_sample)))
+    seconds = n_samples * steps_per_sample / freq  # what is actually simulated
     cfg = merge(config, {"ego": {"autopilot": True}, "highway": {"duration": seconds + 10.0}})
     env = DTHighwayEnv(config=cfg.to_dict())
     env.reset(seed=0)
-    steps_per_sample = max(1, int(sample_every_min * 60 * cfg.highway.policy_frequency))
-    n_samples = max(2, int(round(seconds / (sample_every_min * 60))))
     samples = []
     t0 = time.perf_counter()
     for k in range(n_samples):
@@ -61,7 +62,7 @@ def bench_memory(
     env.close()
     first, last = samples[min(1, len(samples) - 1)], samples[-1]
     return {
-        "hours_simulated": hours,
+        "hours_simulated": round(seconds / 3600.0, 4),
         "wall_time_s": round(wall, 1),
         "sim_seconds_per_wall_second": round(seconds / wall, 1),
         "rss_growth_mb_after_warmup": round(last["rss_mb"] - first["rss_mb"], 2),

@@ -23,6 +23,13 @@ class UserError(Exception):
     """A mistake in the command line or its inputs: reported in one line, exit status 2."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a mistake is reported in one line (with a pointer to ``--help``)."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _json_safe(obj: Any) -> Any:
     """NaN and infinities become ``null`` so the output is strict JSON."""
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -37,6 +44,16 @@ def _json_safe(obj: Any) -> Any:
 def dump_json(obj: Any) -> str:
     """:return: ``obj`` as strict, indented JSON."""
     return json.dumps(_json_safe(obj), indent=2, sort_keys=False, allow_nan=False)
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seed must be a whole number (got '{text}')") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--seed must be >= 0 (got {text})")
+    return value
 
 
 def _add_config_args(p: argparse.ArgumentParser) -> None:
@@ -63,8 +80,8 @@ def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be a number (got '{text}')") from None
-        if value <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0 (got {text})")
+        if not math.isfinite(value) or value <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be a finite number > 0 (got {text})")
         return value
 
     return parse
@@ -141,7 +158,7 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from dt_highway import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="dt-highway",
         description="Highway driving with a cloud digital twin that tags aggressive drivers (highway-env extension).",
     )
@@ -151,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run headless episodes and score the twin (the quick end-to-end run)")
     _add_config_args(p)
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=2, help="episodes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     p.add_argument("--out", default="runs/run", help="output directory (default runs/run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
@@ -159,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("twin-eval", help="precision/recall of the twin's aggressive tags against ground truth")
     _add_config_args(p)
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=3, help="episodes (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode (default 0)")
     p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"), default=30.0,
                    help="judge only drivers the twin observed this long [s] (default 30)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -196,6 +213,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (ConfigError, UserError) as exc:
         print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an output path that cannot be written, a full disk...
+        where = f" '{exc.filename}'" if exc.filename else ""
+        print(f"dt-highway {args.command}: error: cannot write{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"dt-highway {args.command}: interrupted", file=sys.stderr)

@@ -31,7 +31,7 @@ class ConfigError(ValueError):
 class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, assignment is validated."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 # ----------------------------------------------------------------------------- highway-env
@@ -69,12 +69,14 @@ class HighwayConfig(_Section):
     real_time_rendering: bool = False
 
     @model_validator(mode="after")
-    def _frequencies(self) -> HighwayConfig:
+    def _consistent(self) -> HighwayConfig:
         if self.simulation_frequency % self.policy_frequency:
             raise ValueError(
                 "simulation_frequency must be a multiple of policy_frequency "
                 f"(got {self.simulation_frequency} and {self.policy_frequency})"
             )
+        if self.initial_lane_id is not None and self.initial_lane_id >= self.lanes_count:
+            raise ValueError(f"initial_lane_id must be < lanes_count = {self.lanes_count} (got {self.initial_lane_id})")
         return self
 
 
@@ -97,6 +99,13 @@ class DriverParams(_Section):
         1.0, gt=0, le=8, description="largest lateral speed while changing lane [m/s]"
     )
     target_speed_mps: tuple[float, float] = Field((22.0, 28.0), description="range of desired speeds [m/s]")
+
+    @model_validator(mode="after")
+    def _speeds(self) -> DriverParams:
+        lo, hi = self.target_speed_mps
+        if not 0 < lo <= hi <= 40:
+            raise ValueError(f"target_speed_mps must be [low, high] with 0 < low <= high <= 40 (got {[lo, hi]})")
+        return self
 
 
 def _normal_driver() -> DriverParams:
@@ -165,6 +174,11 @@ class TrafficConfig(_Section):
         lo, hi = self.cut_in_gap_m
         if not 0 <= lo < hi:
             raise ValueError(f"cut_in_gap_m must be [low, high] with 0 <= low < high (got {list(self.cut_in_gap_m)})")
+        if max(self.spawn_ahead_m, self.spawn_behind_m) >= self.recycle_distance_m:
+            raise ValueError(
+                f"spawn_ahead_m and spawn_behind_m must be < recycle_distance_m = {self.recycle_distance_m} "
+                f"(got {self.spawn_ahead_m} and {self.spawn_behind_m})"
+            )
         return self
 
 
@@ -183,6 +197,7 @@ class UplinkConfig(LinkConfig):
 
     noise_sigma_m: float = Field(1.0, ge=0, le=50, description="GNSS horizontal noise, per axis [m]")
     speed_noise_sigma_mps: float = Field(0.2, ge=0, description="GNSS speed noise [m/s]")
+    heading_noise_sigma_rad: float = Field(0.02, ge=0, le=3.2, description="GNSS course noise [rad]")
     antenna_height_m: float = Field(1.5, ge=0, description="antenna height above the road [m]")
 
 
@@ -334,7 +349,7 @@ def deep_merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     """
     out = copy.deepcopy(base)
     for key, value in update.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict) and key not in ("observation", "action"):
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
             out[key] = deep_merge(out[key], value)
         else:
             out[key] = copy.deepcopy(value)
@@ -396,7 +411,7 @@ def read_scenario(path: str | Path) -> dict[str, Any]:
     try:
         with p.open("rb") as fh:
             return tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"scenario file '{p}' is not valid TOML: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"scenario file '{p}' cannot be read: {exc.strerror}") from None

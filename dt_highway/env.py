@@ -196,12 +196,15 @@ class DTHighwayEnv(HighwayEnv):
 
     def _build_persistent(self) -> None:
         """Population and twin live across episodes; rebuilt only when their config changes."""
+        twin = self.dt_config.twin
         key = (
             self.dt_config.traffic.model_dump_json(),
-            self.dt_config.twin.model_dump_json(),
+            f"{twin.enabled}|{twin.connected_fraction}|{twin.store.model_dump_json()}|{twin.tagger.model_dump_json()}",
             self.dt_config.highway.lanes_count,
         )
         if key == self._built_for:
+            if self.twin is not None:
+                self.twin.config = twin  # links, radius, pre-roll: no need to forget the drivers
             return
         if self.twin is not None:
             self.twin.close()
@@ -230,7 +233,8 @@ class DTHighwayEnv(HighwayEnv):
         self.downlink = Downlink(cfg.twin.downlink, rngs["downlink"])
         self.twin_view = None
         self._events = []
-        preroll = cfg.twin.preroll_s if cfg.traffic.driver_types else 0.0
+        preroll_steps = int(round(cfg.twin.preroll_s * cfg.highway.simulation_frequency)) if cfg.traffic.driver_types else 0
+        preroll = preroll_steps / cfg.highway.simulation_frequency
         self.sim_time_s = -preroll
         if self.twin is not None:
             self.twin.start_episode()
@@ -240,14 +244,17 @@ class DTHighwayEnv(HighwayEnv):
         self._create_road()
         if cfg.traffic.driver_types:
             self._create_typed_vehicles()
-            if preroll > 0:
-                self._preroll(preroll)
+            if preroll_steps > 0:
+                self._preroll(preroll_steps)
         else:
             super()._create_vehicles()
+            connected = self.traffic.rng.random(len(self.road.vehicles)) < cfg.twin.connected_fraction
             for i, v in enumerate(self.road.vehicles):
                 v.dt_id = i
-                v.dt_connected = cfg.twin.enabled and i > 0
+                v.dt_connected = cfg.twin.enabled and bool(connected[i])
             self.vehicle.dt_connected = cfg.twin.enabled
+            if cfg.ego.autopilot:
+                self._swap_ego(self._autopilot_from(self.vehicle))
         self.sim_time_s = 0.0
         self._events = []
 
@@ -277,13 +284,12 @@ class DTHighwayEnv(HighwayEnv):
         self.traffic.time_s = self.sim_time_s
         self.traffic.populate(self.road, ego, hw.vehicles_count)
 
-    def _preroll(self, duration_s: float) -> None:
-        """Run traffic (ego on the IDM autopilot) for ``duration_s`` before t = 0."""
+    def _preroll(self, n_steps: int) -> None:
+        """Run traffic (ego on the IDM autopilot) for ``n_steps`` simulation steps before t = 0."""
         autopilot = self.dt_config.ego.autopilot
         if not autopilot:
             self._swap_ego(self._autopilot_from(self.vehicle))
-        n = int(round(duration_s * self.config["simulation_frequency"]))
-        for _ in range(n):
+        for _ in range(n_steps):
             self._sim_step()
         if not autopilot:
             stand_in = self.vehicle

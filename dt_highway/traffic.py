@@ -370,6 +370,7 @@ class TrafficManager:
     def _leave(self, v: Vehicle) -> None:
         vid = vehicle_id(v)
         self._left_at[vid] = self.time_s
+        self._crash_time.pop(vid, None)
         self.events.append(TrafficEvent(self.time_s, "despawn", vid, driver_type=driver_type(v)))
 
     def populate(self, road: Road, ego: Vehicle, count: int) -> None:
@@ -413,7 +414,6 @@ class TrafficManager:
             if v.crashed:
                 t0 = self._crash_time.setdefault(vid, self.time_s)
                 if self.time_s - t0 >= self.config.crashed_removal_s:
-                    self._crash_time.pop(vid, None)
                     removed_behind += dx < 0
                     removed_ahead += dx >= 0
                     self._leave(v)

@@ -47,7 +47,8 @@ def test_bad_numbers_on_the_command_line(capsys):
     proc = subprocess.run([sys.executable, "-m", "dt_highway.cli", "twin-eval", "--episodes", "0"],
                           capture_output=True, text=True)
     assert proc.returncode == 2
-    assert "--episodes must be > 0" in proc.stderr
+    assert proc.stderr.count("\n") == 1
+    assert "--episodes must be a finite number > 0" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 
@@ -55,3 +56,27 @@ def test_unknown_scenario_file(capsys):
     assert main(["twin-eval", "--scenario", "envs/nope.toml", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "does not exist" in err[0]
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "dt_highway.cli", *args], capture_output=True, text=True)
+
+
+def _one_line_error(proc, must_contain):
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.strip().splitlines() if ln]
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert must_contain in lines[0]
+
+
+def test_user_mistakes_are_one_line_errors(tmp_path):
+    _one_line_error(_cli("twin-eval", "--set", "twin.enabled=false", "--quiet"), "twin.enabled")
+    _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")
+    _one_line_error(_cli("twin-eval", "--seed", "-1"), "--seed must be >= 0")
+    _one_line_error(_cli("bench", "memory", "--hours", "nan"), "--hours must be a finite number")
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    _one_line_error(_cli("run", "--out", str(blocker / "sub"), "--quiet", *TINY), "cannot write")
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes("title = 'caf\xe9'".encode("latin-1"))
+    _one_line_error(_cli("twin-eval", "--scenario", str(bad), "--quiet"), "not valid TOML")

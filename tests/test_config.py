@@ -58,6 +58,10 @@ def test_parse_override(text, expected):
         ({"highway": {"lanes_count": "four"}}, ["highway.lanes_count", "integer"]),
         ({"twin": 3}, ["twin must be a table"]),
         ({"highway": {"simulation_frequency": 15, "policy_frequency": 2}}, ["multiple of policy_frequency"]),
+        ({"highway": {"duration": float("inf")}}, ["highway.duration", "finite"]),
+        ({"highway": {"lanes_count": 3, "initial_lane_id": 3}}, ["initial_lane_id must be < lanes_count"]),
+        ({"traffic": {"spawn_ahead_m": 500}}, ["spawn_ahead_m", "recycle_distance_m"]),
+        ({"traffic": {"normal": {"target_speed_mps": [30, 20]}}}, ["target_speed_mps"]),
     ],
 )
 def test_bad_values_give_one_line_naming_the_key(tree, must_contain):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dt_highway.config import DownlinkConfig, TwinConfig
+from dt_highway.config import ConfigError, DownlinkConfig, TwinConfig
 from dt_highway.twin.store import FixStore
 from dt_highway.twin.tagger import DriverRecord, HighwayMap, LaneChange, Tagger
 from dt_highway.twin.uplink import GnssFix
@@ -193,17 +193,26 @@ class Downlink:
 
 # ----------------------------------------------------------------------------- SQLite persistence
 def save_records(path: str | Path, twin: CloudTwin) -> None:
-    """Write every driver record and the twin clock to a SQLite file (replacing its content)."""
-    con = sqlite3.connect(str(path))
+    """Write every driver record and the twin clock to a SQLite file (replacing its content).
+
+    :raises ConfigError: when the file cannot be written
+    """
+    try:
+        con = sqlite3.connect(str(path))
+    except sqlite3.Error as exc:
+        raise ConfigError(f"twin.store.path '{path}' cannot be opened: {exc}") from None
     try:
         with con:
             con.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
             con.execute("CREATE TABLE IF NOT EXISTS drivers (vehicle_id INTEGER PRIMARY KEY, record TEXT)")
+            con.execute("DELETE FROM drivers")
             con.execute("INSERT OR REPLACE INTO meta VALUES ('now_s', ?)", (repr(twin.now_s),))
             con.executemany(
                 "INSERT OR REPLACE INTO drivers VALUES (?, ?)",
                 [(vid, json.dumps(asdict(rec))) for vid, rec in twin.tagger.records.items()],
             )
+    except sqlite3.Error as exc:
+        raise ConfigError(f"twin.store.path '{path}' cannot be written: {exc}") from None
     finally:
         con.close()
 
@@ -221,7 +230,7 @@ def load_records(path: str | Path, twin: CloudTwin) -> None:
             d = json.loads(text)
             d["evidence"] = [LaneChange(**e) for e in d["evidence"]]
             twin.tagger.records[int(vid)] = DriverRecord(**d)
-    except (sqlite3.DatabaseError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"twin.store.path '{path}' is not a dt-highway twin store: {exc}") from None
+    except (sqlite3.Error, KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"twin.store.path '{path}' is not a dt-highway twin store: {exc}") from None
     finally:
         con.close()

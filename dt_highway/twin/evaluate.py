@@ -7,7 +7,9 @@ pooled (a driver met in several episodes is judged in each, as the twin may have
 its mind). Precision and recall are for the class ``aggressive``.
 
 ``median_time_to_tag_s`` is, over the truly aggressive drivers that the twin tagged, the
-median time from the twin's first fix of the driver to its first ``aggressive`` tag.
+median time from the twin's first analysis of the driver (its first fixes, to within one
+tagger update) to its first ``aggressive`` tag, read from the twin's records after the
+last episode (with ``persist_across_episodes`` off, those of the last episode only).
 The ego runs on its IDM autopilot: the twin does not depend on how the ego drives.
 """
 
@@ -17,7 +19,7 @@ import statistics
 from collections.abc import Callable
 from typing import Any
 
-from dt_highway.config import DTConfig, merge
+from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.traffic import AGGRESSIVE, EGO_ID
 
 
@@ -42,7 +44,9 @@ def evaluate_twin(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1 (got {episodes})")
     if not config.twin.enabled:
-        raise ValueError("twin-eval needs twin.enabled = true")
+        raise ConfigError("twin-eval needs twin.enabled = true")
+    if not config.traffic.driver_types:
+        raise ConfigError("twin-eval needs traffic.driver_types = true (stock traffic has no driver types to score)")
     cfg = merge(config, {"ego": {"autopilot": True}})
     env = DTHighwayEnv(config=cfg.to_dict())
     tp = fp = fn = tn = 0

@@ -200,7 +200,8 @@ class DriverRecord:
     """What the twin knows of one driver (bounded: evidence keeps the last ``max_evidence``).
 
     :param vehicle_id: stable id
-    :param first_seen_s: twin time of the first fix [s]
+    :param first_seen_s: twin time the record was made: the first analysis of the driver's
+        fixes (within one tagger update of the first fix's arrival) [s]
     :param observed_s: time with fixes [s]
     :param n_lane_changes: lane changes seen
     :param n_sudden: sudden lane changes seen

@@ -5,7 +5,7 @@ random phase), so fix times are exact even when the simulation runs at another f
 a fix scheduled between two simulation steps is taken at its own time, the vehicle's
 position moved back along its velocity from the step's end. Each fix is lost with
 probability ``loss_prob``; the others arrive ``max(0, N(latency_mean_s, latency_jitter_s))``
-seconds after they were taken.
+seconds after they were taken. Position, speed and heading all carry measurement noise.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class GnssFix:
     :param x_m: measured position along the road [m]
     :param y_m: measured lateral position [m]
     :param speed_mps: measured speed [m/s]
-    :param heading_rad: measured heading [rad]
+    :param heading_rad: measured heading (course) [rad]
     :param arrival_s: time the cloud receives it [s]
     """
 
@@ -96,7 +96,7 @@ class Uplink:
     def _fix(self, s: VehicleState, t_fix: float, t_now: float) -> GnssFix | None:
         cfg = self.config
         back = t_now - t_fix
-        nx, ny, nv = self.rng.normal(0.0, 1.0, size=3)
+        nx, ny, nv, nh = self.rng.normal(0.0, 1.0, size=4)
         lost = self.rng.random() < cfg.loss_prob
         latency = max(0.0, cfg.latency_mean_s + cfg.latency_jitter_s * float(self.rng.normal()))
         if lost:
@@ -107,6 +107,6 @@ class Uplink:
             x_m=s.x_m - s.vx_mps * back + cfg.noise_sigma_m * nx,
             y_m=s.y_m - s.vy_mps * back + cfg.noise_sigma_m * ny,
             speed_mps=s.speed_mps + cfg.speed_noise_sigma_mps * nv,
-            heading_rad=s.heading_rad,
+            heading_rad=s.heading_rad + cfg.heading_noise_sigma_rad * nh,
             arrival_s=t_fix + latency,
         )
