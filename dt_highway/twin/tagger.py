@@ -297,12 +297,12 @@ class Tagger:
             self._retag(rec, now_s)
             return rec
         # at low fix rates, average at least MIN_SMOOTHING_SAMPLES fixes
-        window = max(cfg.smoothing_s, self.MIN_SMOOTHING_SAMPLES * float(np.median(np.diff(t))))
+        dt_fix = float(np.median(np.diff(t)))
+        window = max(cfg.smoothing_s, self.MIN_SMOOTHING_SAMPLES * dt_fix)
         ys = moving_average(t, y, window)
         half = cfg.fit_window_s
         need = min(half, 2.5)
-        dt_fix = float(np.median(np.diff(t)))
-        sigma_smoothed = self._smoothed_sigma_m(t, y, window)
+        sigma_smoothed = self._smoothed_sigma_m(y, window / dt_fix)
         hysteresis = max(cfg.hysteresis_m, self.HYSTERESIS_SIGMAS * sigma_smoothed)
         # what these fixes can tell: a move as short as the sudden threshold must span
         # several fix intervals to be timed; gaps need lanes that are told apart reliably
@@ -343,18 +343,17 @@ class Tagger:
         return rec
 
     @staticmethod
-    def _smoothed_sigma_m(t: np.ndarray, y: np.ndarray, window_s: float) -> float:
+    def _smoothed_sigma_m(y: np.ndarray, n_window: float) -> float:
         """Standard deviation of the smoothed lateral position [m], from the track itself.
 
         The GNSS noise is estimated from the fix-to-fix differences (robust: the median
         absolute difference ignores the few samples of a lane change) and divided by the
-        square root of the number of fixes the smoothing window averages.
+        square root of the number of fixes the smoothing window averages (``n_window``).
         """
         if len(y) < 3:
             return 0.0
         sigma = 1.4826 * float(np.median(np.abs(np.diff(y)))) / math.sqrt(2.0)
-        n = max(1.0, window_s / float(np.median(np.diff(t))))
-        return sigma / math.sqrt(n)
+        return sigma / math.sqrt(max(1.0, n_window))
 
     def _retag(self, rec: DriverRecord, now_s: float) -> None:
         p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)
