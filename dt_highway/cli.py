@@ -89,10 +89,10 @@ def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
 
 # ----------------------------------------------------------------------------- twin-eval
 def cmd_twin_eval(args: argparse.Namespace) -> int:
-    from dt_highway.twin.evaluate import evaluate_twin
+    from dt_highway.twin.evaluate import episode_steps, evaluate_twin
 
     cfg = _config(args)
-    steps = args.episodes * int(cfg.highway.duration * cfg.highway.policy_frequency)
+    steps = args.episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
         result = evaluate_twin(cfg, args.episodes, args.seed, args.min_observed_s, progress=bar.update)
     if args.json:
@@ -114,12 +114,12 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
     """Headless episodes with the twin: what the ego receives, and how the tags compare."""
-    from dt_highway.twin.evaluate import evaluate_twin
+    from dt_highway.twin.evaluate import episode_steps, evaluate_twin
 
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    steps = args.episodes * int(cfg.highway.duration * cfg.highway.policy_frequency)
+    steps = args.episodes * episode_steps(cfg)
     t0 = time.perf_counter()
     with _progress(steps, "run", args.quiet) as bar:
         result = evaluate_twin(cfg, args.episodes, args.seed, progress=bar.update)

@@ -23,6 +23,12 @@ from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.traffic import AGGRESSIVE, EGO_ID
 
 
+def episode_steps(config: DTConfig) -> int:
+    """Policy steps one evaluation episode takes, the pre-roll counted (for progress bars)."""
+    hw = config.highway
+    return int(round((config.twin.preroll_s + hw.duration) * hw.policy_frequency))
+
+
 def evaluate_twin(
     config: DTConfig,
     episodes: int,
@@ -36,7 +42,8 @@ def evaluate_twin(
     :param episodes: number of episodes (>= 1)
     :param seed: seed of the first reset; later episodes continue the same random streams
     :param min_observed_s: drivers observed for less than this are not judged [s]
-    :param progress: called with the number of simulated policy steps after each step
+    :param progress: called with the number of policy steps simulated (the pre-roll's after
+        each reset, then 1 after each step): see :func:`episode_steps`
     :return: the scores (see the module docstring) and the settings used
     """
     from dt_highway.env import DTHighwayEnv
@@ -57,6 +64,8 @@ def evaluate_twin(
     try:
         for ep in range(episodes):
             env.reset(seed=seed if ep == 0 else None)
+            if progress is not None:
+                progress(int(round(cfg.twin.preroll_s * cfg.highway.policy_frequency)))
             seen = {vid for vid in (getattr(v, "dt_id", -1) for v in env.road.vehicles) if vid > 0}
             done = False
             while not done:
