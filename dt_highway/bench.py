@@ -24,13 +24,17 @@ def _rss_mb() -> float:
 def bench_memory(
     config: DTConfig, hours: float, sample_every_min: float = 10.0, progress: Callable[[int], None] | None = None
 ) -> dict[str, Any]:
-    """Run one long episode (ego on autopilot) and sample memory as it goes.
+    """Run one env for ``hours`` of simulated time (ego on autopilot) and sample memory.
+
+    The episode lasts the whole run unless the ego crashes; the env is then reset without a
+    seed (same drivers, the twin keeps its records), so memory is watched across episodes
+    too.
 
     :param config: resolved configuration (duration is set to cover ``hours``)
     :param hours: simulated time [h]
     :param sample_every_min: sampling period [min of simulated time]
     :param progress: called with the number of policy steps done after each step
-    :return: samples of RSS [MB], live Python objects, fixes held, driver records, and the
+    :return: samples of RSS [MB], live Python objects, fixes held, driver records, episodes, and the
         growth between the first sample after warm-up and the last one
     """
     from dt_highway.env import DTHighwayEnv
@@ -43,15 +47,20 @@ def bench_memory(
     env = DTHighwayEnv(config=cfg.to_dict())
     env.reset(seed=0)
     samples = []
+    episodes = 1
     t0 = time.perf_counter()
     for k in range(n_samples):
         for _ in range(steps_per_sample):
-            env.step(0)
+            _, _, terminated, truncated, _ = env.step(0)
+            if terminated or truncated:  # e.g. the ego was hit by a cut-in: the world goes on
+                env.reset()
+                episodes += 1
             if progress is not None:
                 progress(1)
         gc.collect()
         samples.append({
-            "sim_time_min": round(env.sim_time_s / 60.0, 2),
+            "sim_time_min": round((k + 1) * steps_per_sample / freq / 60.0, 2),
+            "episodes": episodes,
             "rss_mb": round(_rss_mb(), 2),
             "live_objects": len(gc.get_objects()),
             "twin_fixes_held": env.twin.store.n_fixes() if env.twin else 0,

@@ -148,7 +148,8 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
     else:
         for s in result["samples"]:
             print(f"{s['sim_time_min']:8.1f} min  rss {s['rss_mb']:8.1f} MB  objects {s['live_objects']:8d}  "
-                  f"fixes {s['twin_fixes_held']:6d}  records {s['twin_records']:4d}  vehicles {s['vehicles']}")
+                  f"fixes {s['twin_fixes_held']:6d}  records {s['twin_records']:4d}  vehicles {s['vehicles']}  "
+                  f"episodes {s['episodes']}")
         print(f"RSS growth after warm-up: {result['rss_growth_mb_after_warmup']} MB over {args.hours} h simulated "
               f"({result['sim_seconds_per_wall_second']} sim s per wall s)")
     return 0
