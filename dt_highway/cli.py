@@ -19,10 +19,6 @@ from typing import Any
 from dt_highway.config import ConfigError, DTConfig, load_config
 
 
-class UserError(Exception):
-    """A mistake in the command line or its inputs: reported in one line, exit status 2."""
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse, but a mistake is reported in one line (with a pointer to ``--help``)."""
 
@@ -212,7 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (ConfigError, UserError) as exc:
+    except ConfigError as exc:
         print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # an output path that cannot be written, a full disk...
