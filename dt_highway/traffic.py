@@ -151,6 +151,11 @@ class TypedDriverVehicle(IDMVehicle):
         super().step(dt)
 
 
+def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
+    """Gap from ``rear``'s front bumper to ``front``'s rear bumper along the road [m]."""
+    return float(front.position[0] - rear.position[0]) - (front.LENGTH + rear.LENGTH) / 2.0
+
+
 @dataclass
 class CutInPolicy:
     """When and in front of whom an aggressive driver cuts in.
@@ -233,15 +238,14 @@ class CutInPolicy:
         if not same_lane and ego.lane_index not in me.road.network.side_lanes(me.lane_index):
             return False
         dx = me.position[0] - ego.position[0]
-        lo = self.gap_m[0] + (me.LENGTH + ego.LENGTH) / 2
-        hi = self.gap_m[1] + (me.LENGTH + ego.LENGTH) / 2
         if not -self.search_range_m < dx < self.search_range_m or (same_lane and dx > 0):
             return False
         if self.desired_speed_mps is None:
             self.desired_speed_mps = me.target_speed
-        if dx < lo:
+        gap = _bumper_gap_m(me, ego)
+        if gap < self.gap_m[0]:
             me.target_speed = max(self.desired_speed_mps, ego.speed + self.CHASE_SPEED_MPS)
-        elif dx > hi:
+        elif gap > self.gap_m[1]:
             me.target_speed = max(ego.speed - self.CHASE_SPEED_MPS / 2, 5.0)
         else:
             me.target_speed = ego.speed + 1.0
@@ -272,7 +276,7 @@ class CutInPolicy:
             dx = me.position[0] - v.position[0]
             if not 0.0 < dx < self.search_range_m:
                 continue
-            gap = dx - (me.LENGTH + v.LENGTH) / 2.0
+            gap = _bumper_gap_m(me, v)
             if lo <= gap <= hi and v.speed <= me.speed + 3.0:
                 out.append(v)
         return out
