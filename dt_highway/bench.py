@@ -78,3 +78,94 @@ def bench_memory(
         "live_object_growth_after_warmup": last["live_objects"] - first["live_objects"],
         "samples": samples,
     }
+
+
+def _pin_one_core() -> int | None:
+    """Run this process on one CPU (and OpenCV on one thread); return the CPU, None if not possible."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    try:
+        cpu = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpu})
+        return cpu
+    except (AttributeError, OSError):
+        return None
+
+
+def bench_camera(
+    config: DTConfig, scenes: int = 60, repeats: int = 5, progress: Callable[[int], None] | None = None
+) -> dict[str, Any]:
+    """Time our camera against highway-env's top-down ``render()`` on the same scenes, on one core.
+
+    The env runs with ``config`` (the ego on autopilot); after each policy step, the same
+    scene is rendered ``repeats`` times by each of: our camera at 640x360 and at 320x180
+    (RGB + depth + instance + ground-truth boxes, reading the vehicles from the road
+    included), and highway-env's ``render()`` (``rgb_array``, 640x360). Calls are
+    interleaved so that drifts of the machine hit all three alike.
+
+    :param config: resolved configuration (vehicle count, lanes, camera settings)
+    :param scenes: number of scenes (policy steps) [-]
+    :param repeats: renderings of each scene per renderer [-]
+    :param progress: called with 1 after each scene
+    :return: median frame times [ms], frames/s, the ratio ours / highway-env at 640x360,
+        vehicles drawn per frame, and whether the targets are met
+    """
+    import numpy as np
+
+    from dt_highway.camera.pinhole import Pose
+    from dt_highway.camera.scene import RoadScene, VehicleSet
+    from dt_highway.env import DTHighwayEnv, make_camera
+
+    cpu = _pin_one_core()
+    hw = {"screen_width": 640, "screen_height": 360, "offscreen_rendering": True}
+    cfg = merge(config, {"ego": {"autopilot": True}, "highway": hw, "camera": {"enabled": False}})
+    env = DTHighwayEnv(config=cfg.to_dict(), render_mode="rgb_array")
+    env.reset(seed=0)
+    scene = RoadScene.from_road(env.road)
+    cams = {
+        (w, h): make_camera(cfg.camera.model_copy(update={"width_px": w, "height_px": h}), scene)
+        for w, h in ((640, 360), (320, 180))
+    }
+    times: dict[str, list[float]] = {"ours_640x360": [], "ours_320x180": [], "highway_env_topdown_640x360": []}
+    drawn, visible, vehicles_on_road = [], [], []
+    env.render()  # first call opens the pygame surfaces
+    for _ in range(scenes):
+        _, _, terminated, truncated, _ = env.step(0)
+        if terminated or truncated:
+            env.reset()
+        ego = env.vehicle
+        for _ in range(repeats):
+            for (w, h), cam in cams.items():
+                t0 = time.perf_counter()
+                frame = cam.render(Pose(float(ego.position[0]), float(ego.position[1]), float(ego.heading)),
+                                   VehicleSet.from_road(env.road, exclude=ego))
+                times[f"ours_{w}x{h}"].append(time.perf_counter() - t0)
+                if w == 640:
+                    drawn.append(len(frame.vehicles))
+                    visible.append(sum(v.visible_box is not None for v in frame.vehicles.values()))
+            t0 = time.perf_counter()
+            env.render()
+            times["highway_env_topdown_640x360"].append(time.perf_counter() - t0)
+        vehicles_on_road.append(len(env.road.vehicles) - 1)
+        if progress is not None:
+            progress(1)
+    env.close()
+    med = {k: float(np.median(v)) * 1e3 for k, v in times.items()}
+    ratio = med["ours_640x360"] / med["highway_env_topdown_640x360"]
+    fps_small = 1e3 / med["ours_320x180"]
+    return {
+        "cpu": cpu,
+        "opencv_threads": 1,
+        "frames_per_renderer": len(times["ours_640x360"]),
+        "npc_vehicles_on_road_median": float(np.median(vehicles_on_road)),
+        "vehicles_drawn_per_frame_median": float(np.median(drawn)),
+        "vehicles_visible_per_frame_median": float(np.median(visible)),
+        "median_ms": {k: round(v, 3) for k, v in med.items()},
+        "p90_ms": {k: round(float(np.percentile(v, 90)) * 1e3, 3) for k, v in times.items()},
+        "ratio_ours_640x360_to_highway_env": round(ratio, 3),
+        "fps_ours_320x180": round(fps_small, 1),
+        "fps_ours_640x360": round(1e3 / med["ours_640x360"], 1),
+        "targets": {"ratio_max": 1.0, "fps_320x180_min": 500.0},
+        "targets_met": bool(ratio <= 1.0 and fps_small >= 500.0),
+    }

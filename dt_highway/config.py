@@ -276,6 +276,39 @@ class EgoConfig(_Section):
     autopilot_speed_mps: float = Field(25.0, gt=0, le=40, description="the autopilot's desired speed [m/s]")
 
 
+# ----------------------------------------------------------------------------- camera
+class CameraMountConfig(_Section):
+    """Where the camera sits on the ego (the ego's frame: x forward, y right, z up)."""
+
+    forward_m: float = Field(0.5, ge=-10, le=10, description="ahead of the ego's centre [m]")
+    lateral_m: float = Field(0.0, ge=-5, le=5, description="right of the ego's centre [m]")
+    height_m: float = Field(1.3, gt=0, le=10, description="above the road [m]")
+    pitch_deg: float = Field(3.0, ge=-60, le=60, description="optical axis below the horizon [deg] (positive looks down)")
+    yaw_deg: float = Field(0.0, ge=-180, le=180, description="optical axis right of the ego's heading [deg]")
+
+
+class CameraConfig(_Section):
+    """The ego's synthetic RGB + depth camera (:mod:`dt_highway.camera`)."""
+
+    enabled: bool = Field(False, description="render a camera frame every policy step")
+    width_px: int = Field(640, ge=16, le=4096, description="image width [px]")
+    height_px: int = Field(360, ge=16, le=4096, description="image height [px]")
+    hfov_deg: float = Field(90.0, ge=5, le=170, description="horizontal field of view [deg]")
+    mount: CameraMountConfig = Field(default_factory=CameraMountConfig)
+    near_m: float = Field(0.1, gt=0, le=10, description="near plane: nothing nearer is drawn [m]")
+    max_range_m: float = Field(200.0, gt=0, le=2000, description="farthest distance drawn; depth saturates there [m]")
+    vehicle_height_m: float = Field(1.5, ge=0.5, le=5, description="height of the cars [m]")
+    detail_min_px: float = Field(
+        10.0, ge=0, description="lights, plates and wheels are drawn on vehicles at least this wide on screen [px]"
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CameraConfig:
+        if self.max_range_m <= self.near_m:
+            raise ValueError(f"max_range_m must exceed near_m = {self.near_m} (got {self.max_range_m})")
+        return self
+
+
 # ----------------------------------------------------------------------------- root
 class DTConfig(_Section):
     """The whole configuration of a dt-highway env."""
@@ -284,6 +317,13 @@ class DTConfig(_Section):
     ego: EgoConfig = Field(default_factory=EgoConfig)
     traffic: TrafficConfig = Field(default_factory=TrafficConfig)
     twin: TwinConfig = Field(default_factory=TwinConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+
+    @model_validator(mode="after")
+    def _camera_for_observation(self) -> DTConfig:
+        if self.highway.observation.get("type") == "Camera" and not self.camera.enabled:
+            raise ValueError("highway.observation.type = 'Camera' needs camera.enabled = true")
+        return self
 
     def to_dict(self) -> dict[str, Any]:
         """:return: the resolved tree as plain Python values (TOML/JSON friendly)."""

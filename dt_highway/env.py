@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from highway_env.envs.common.observation import KinematicObservation
+from highway_env.envs.common.action import action_factory
+from highway_env.envs.common.observation import KinematicObservation, ObservationType
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
@@ -31,7 +32,10 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from scipy.optimize import linear_sum_assignment
 
-from dt_highway.config import ConfigError, DTConfig, merge
+from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
+from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
+from dt_highway.camera.scene import RoadScene, VehicleSet
+from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
 from dt_highway.traffic import (
     EGO_ID,
     DriverPopulation,
@@ -108,6 +112,51 @@ class TwinTaggedKinematics(KinematicObservation):
         return out
 
 
+class CameraObservation(ObservationType):
+    """The ego camera's images, for vision agents: ``{"rgb": (H, W, 3), "depth": (H, W, 1)}``.
+
+    Both are ``uint8`` images as stable-baselines3's ``MultiInputPolicy`` expects. Depth is
+    encoded by :func:`~dt_highway.camera.render.depth_to_uint8` (linear, 255 at the camera,
+    0 at ``camera.max_range_m`` and beyond); the float depth in metres is on
+    ``env.unwrapped.camera_frame().depth_m``. The frame is the env's one rendering of the
+    step, shared with ``info`` and the fusion (it is not rendered twice).
+
+    :param depth: also return the depth image
+    """
+
+    def __init__(self, env: DTHighwayEnv, depth: bool = True) -> None:
+        super().__init__(env)
+        self.depth = bool(depth)
+
+    def space(self) -> spaces.Space:
+        cam = self.env.dt_config.camera
+        parts: dict[str, spaces.Space] = {
+            "rgb": spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 3), dtype=np.uint8)
+        }
+        if self.depth:
+            parts["depth"] = spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 1), dtype=np.uint8)
+        return spaces.Dict(parts)
+
+    def observe(self) -> dict[str, np.ndarray]:
+        frame = self.env.camera_frame()
+        out = {"rgb": frame.rgb}
+        if self.depth:
+            out["depth"] = depth_to_uint8(frame.depth_m, self.env.dt_config.camera.max_range_m)[..., None]
+        return out
+
+
+def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
+    """Build the renderer described by a ``camera`` config section for a road."""
+    m = cfg.mount
+    camera = PinholeCamera(
+        Intrinsics.from_fov(cfg.width_px, cfg.height_px, math.radians(cfg.hfov_deg)),
+        Mount(m.forward_m, m.lateral_m, m.height_m, math.radians(m.pitch_deg), math.radians(m.yaw_deg)),
+        near_m=cfg.near_m,
+    )
+    settings = RenderSettings(cfg.max_range_m, cfg.vehicle_height_m, detail_min_px=cfg.detail_min_px)
+    return CameraRenderer(camera, scene, settings)
+
+
 class DTHighwayEnv(HighwayEnv):
     """The dt-highway environment (see the module docstring).
 
@@ -133,6 +182,11 @@ class DTHighwayEnv(HighwayEnv):
         self._built_for: tuple[str, str, int] | None = None
         self._world_seed: int | None = None
         self._events: list[TrafficEvent] = []
+        self.camera: CameraRenderer | None = None
+        self._camera_key: tuple[str, RoadScene] | None = None
+        self._frame: CameraFrame | None = None
+        self._frame_key: tuple[int, int] | None = None
+        self._episode = 0
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
         super().__init__(config, render_mode)
@@ -161,6 +215,19 @@ class DTHighwayEnv(HighwayEnv):
             self.config["offscreen_rendering"] = self.render_mode != "human"
 
     def define_spaces(self) -> None:
+        obs_cfg = dict(self.config["observation"])
+        if obs_cfg.get("type") == "Camera":
+            obs_cfg.pop("type")
+            try:
+                self.observation_type = CameraObservation(self, **obs_cfg)
+            except TypeError:
+                raise ConfigError(
+                    f"highway.observation for type 'Camera' takes only 'depth' (got {sorted(obs_cfg)})"
+                ) from None
+            self.action_type = action_factory(self, self.config["action"])
+            self.observation_space = self.observation_type.space()
+            self.action_space = self.action_type.space()
+            return
         super().define_spaces()
         if self.dt_config.twin.in_observation:
             obs_cfg = dict(self.config["observation"])
@@ -257,6 +324,40 @@ class DTHighwayEnv(HighwayEnv):
                 self._swap_ego(self._autopilot_from(self.vehicle))
         self.sim_time_s = 0.0
         self._events = []
+        self._episode += 1
+        self._frame, self._frame_key = None, None
+        self._build_camera()
+
+    def _build_camera(self) -> None:
+        """The camera renderer for this road (kept across episodes while nothing changes)."""
+        cfg = self.dt_config.camera
+        if not cfg.enabled:
+            self.camera, self._camera_key = None, None
+            return
+        scene = RoadScene.from_road(self.road)
+        key = (cfg.model_dump_json(), scene)
+        if key != self._camera_key:
+            self.camera = make_camera(cfg, scene)
+            self._camera_key = key
+
+    def camera_frame(self) -> CameraFrame:
+        """The ego camera's frame at the current simulation step, rendered once per step.
+
+        Observation, ``info`` and any caller (fusion, overlay, recorder) share this one
+        rendering; call it as often as needed.
+
+        :return: RGB, planar depth [m], instance ids and per-vehicle ground truth
+        :raises RuntimeError: if the camera is off (``camera.enabled = false``) or before ``reset``
+        """
+        if self.camera is None:
+            raise RuntimeError("the camera is off: set camera.enabled = true (and reset) to get frames")
+        key = (self._episode, self.steps)
+        if self._frame is None or self._frame_key != key:
+            ego = self.vehicle
+            pose = Pose(float(ego.position[0]), float(ego.position[1]), float(ego.heading))
+            self._frame = self.camera.render(pose, VehicleSet.from_road(self.road, exclude=ego), self.sim_time_s)
+            self._frame_key = key
+        return self._frame
 
     def _create_road(self) -> None:
         hw = self.dt_config.highway
@@ -384,6 +485,9 @@ class DTHighwayEnv(HighwayEnv):
             },
             "events": [ev.__dict__.copy() for ev in self._events],
         }
+        if self.camera is not None:
+            # the camera's ground truth (instance boxes); the images are on camera_frame()
+            info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_frame().vehicles.values()]
         self._events = []
         return info
 

@@ -147,18 +147,31 @@ class PinholeCamera:
         :return: ``R`` (3x3, proper rotation) and ``t`` (3,) with ``P_c = R P + t`` for ``P``
             in the right-handed world frame (``z`` down); see the module docstring
         """
+        ch, sh = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
+        ego_to_world = np.array([[ch, -sh, 0.0], [sh, ch, 0.0], [0.0, 0.0, 1.0]])
+        rot = self._axes_in_ego @ ego_to_world.T  # rows: the camera's right, down, forward axes
+        centre = np.array([pose.x_m, pose.y_m, 0.0]) + ego_to_world @ self._offset_in_ego
+        return rot, -rot @ centre
+
+    @property
+    def _axes_in_ego(self) -> np.ndarray:
+        """The camera's right, down and forward axes (rows) in the ego frame (x fwd, y right, z down)."""
+        cached = self.__dict__.get("_axes_cache")
+        if cached is not None and cached[0] is self.mount:
+            return cached[1]
         m = self.mount
         cp, sp = math.cos(m.pitch_rad), math.sin(m.pitch_rad)
         cy, sy = math.cos(m.yaw_rad), math.sin(m.yaw_rad)
-        # camera axes in the ego frame (x forward, y right, z down)
         forward = np.array([cp * cy, cp * sy, sp])
         right = np.array([-sy, cy, 0.0])
-        down = np.cross(forward, right)
-        ch, sh = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
-        ego_to_world = np.array([[ch, -sh, 0.0], [sh, ch, 0.0], [0.0, 0.0, 1.0]])
-        rot = np.stack([ego_to_world @ right, ego_to_world @ down, ego_to_world @ forward])
-        centre = np.array([pose.x_m, pose.y_m, 0.0]) + ego_to_world @ np.array([m.forward_m, m.lateral_m, -m.height_m])
-        return rot, -rot @ centre
+        axes = np.stack([right, np.cross(forward, right), forward])
+        self.__dict__["_axes_cache"] = (m, axes)
+        return axes
+
+    @property
+    def _offset_in_ego(self) -> np.ndarray:
+        m = self.mount
+        return np.array([m.forward_m, m.lateral_m, -m.height_m])
 
     def to_camera(self, points_world: np.ndarray, pose: Pose) -> np.ndarray:
         """World points (``z`` up) in the camera frame, ``(N, 3)`` [m]."""
