@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from dt_highway.config import DTConfig, merge
@@ -80,17 +81,28 @@ def bench_memory(
     }
 
 
-def _pin_one_core() -> int | None:
-    """Run this process on one CPU (and OpenCV on one thread); return the CPU, None if not possible."""
+@contextlib.contextmanager
+def _one_core() -> Iterator[int | None]:
+    """Run this process on one CPU, OpenCV on one thread; restore both afterwards.
+
+    :return: (as the context value) the CPU, ``None`` where affinity cannot be set
+    """
     import cv2
 
+    threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
-        cpu = min(os.sched_getaffinity(0))
+        before = os.sched_getaffinity(0)
+        cpu: int | None = min(before)
         os.sched_setaffinity(0, {cpu})
-        return cpu
     except (AttributeError, OSError):
-        return None
+        before, cpu = None, None
+    try:
+        yield cpu
+    finally:
+        cv2.setNumThreads(threads)
+        if before is not None:
+            os.sched_setaffinity(0, before)
 
 
 def bench_camera(
@@ -111,13 +123,19 @@ def bench_camera(
     :return: median frame times [ms], frames/s, the ratio ours / highway-env at 640x360,
         vehicles drawn per frame, and whether the targets are met
     """
+    with _one_core() as cpu:
+        return _bench_camera(config, scenes, repeats, progress, cpu)
+
+
+def _bench_camera(
+    config: DTConfig, scenes: int, repeats: int, progress: Callable[[int], None] | None, cpu: int | None
+) -> dict[str, Any]:
     import numpy as np
 
     from dt_highway.camera.pinhole import Pose
     from dt_highway.camera.scene import RoadScene, VehicleSet
     from dt_highway.env import DTHighwayEnv, make_camera
 
-    cpu = _pin_one_core()
     hw = {"screen_width": 640, "screen_height": 360, "offscreen_rendering": True}
     cfg = merge(config, {"ego": {"autopilot": True}, "highway": hw, "camera": {"enabled": False}})
     env = DTHighwayEnv(config=cfg.to_dict(), render_mode="rgb_array")

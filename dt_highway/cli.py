@@ -131,7 +131,44 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- camera
+def cmd_camera(args: argparse.Namespace) -> int:
+    """Sample frames of the ego camera as PNGs."""
+    from dt_highway.camera.export import record_frames
+
+    cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
+    if not cfg.camera.enabled:
+        raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
+    out = Path(args.out)
+    with _progress(args.frames, "camera", args.quiet) as bar:
+        result = record_frames(cfg, args.frames, args.seed, out, args.every, args.raw, progress=bar.update)
+    (out / "config.json").write_text(dump_json(cfg.to_dict()) + "\n")
+    print(
+        f"wrote {args.frames} frames ({cfg.camera.width_px}x{cfg.camera.height_px}: rgb, depth, instance, boxes"
+        f"{', npz' if args.raw else ''}) to {out}; {result['vehicles_seen']} vehicles seen"
+    )
+    return 0
+
+
 # ----------------------------------------------------------------------------- bench
+def cmd_bench_camera(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_camera
+
+    cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
+    with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
+        result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
+    if args.json:
+        print(dump_json(result))
+    else:
+        med = result["median_ms"]
+        print(f"median frame time, one core: ours 640x360 {med['ours_640x360']:.2f} ms, ours 320x180 "
+              f"{med['ours_320x180']:.2f} ms ({result['fps_ours_320x180']:.0f} frames/s), highway-env top-down "
+              f"640x360 {med['highway_env_topdown_640x360']:.2f} ms; ratio {result['ratio_ours_640x360_to_highway_env']:.2f}"
+              f" ({result['vehicles_drawn_per_frame_median']:.0f} vehicles drawn per frame); "
+              f"targets {'met' if result['targets_met'] else 'NOT met'}")
+    return 0
+
+
 def cmd_bench_memory(args: argparse.Namespace) -> int:
     from dt_highway.bench import bench_memory
 
@@ -181,9 +218,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_twin_eval)
 
+    p = sub.add_parser("camera", help="write sample frames of the ego camera (RGB, depth, instance ids, boxes) as PNGs")
+    _add_config_args(p)
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--frames", type=_positive(int, "--frames"), default=4, help="frames to write (default 4)")
+    p.add_argument("--every", type=_positive(int, "--every"), default=1, help="policy steps between frames (default 1)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
+    p.add_argument("--raw", action="store_true", help="also write float depth [m] and instance ids as .npz")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_camera)
+
     bench = sub.add_parser("bench", help="benchmarks that print numbers")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
+    p = bsub.add_parser("camera", help="our camera vs highway-env's top-down render, 50 vehicles, one core")
+    _add_config_args(p)
+    p.add_argument("--scenes", type=_positive(int, "--scenes"), default=60, help="scenes (policy steps, default 60)")
+    p.add_argument("--repeats", type=_positive(int, "--repeats"), default=5,
+                   help="renderings of each scene per renderer (default 5)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench_camera)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

@@ -80,3 +80,42 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     bad = tmp_path / "latin1.toml"
     bad.write_bytes("title = 'caf\xe9'".encode("latin-1"))
     _one_line_error(_cli("twin-eval", "--scenario", str(bad), "--quiet"), "not valid TOML")
+
+
+def test_camera_writes_pngs(tmp_path, capsys):
+    import cv2
+
+    out = tmp_path / "cam"
+    args = ["camera", "--out", str(out), "--frames", "2", "--raw", "--quiet",
+            "--set", "camera.width_px=160", "--set", "camera.height_px=90", *TINY]
+    assert main(args) == 0
+    assert str(out) in capsys.readouterr().out
+    for kind in ("rgb", "depth", "instance", "boxes"):
+        for i in range(2):
+            img = cv2.imread(str(out / f"{kind}_{i:04d}.png"))
+            assert img is not None and img.shape == (90, 160, 3)
+    raw = __import__("numpy").load(out / "frame_0001.npz")
+    assert raw["depth_m"].dtype.name == "float32" and raw["instance"].dtype.name == "int32"
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    assert len(lines) == 2 and "vehicles" in json.loads(lines[0])
+
+
+def test_camera_bad_input(tmp_path, capsys):
+    assert main(["camera", "--out", str(tmp_path), "--set", "camera.hfov_deg=200", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "camera.hfov_deg" in err[0]
+    proc = subprocess.run([sys.executable, "-m", "dt_highway.cli", "camera", "--out", str(tmp_path), "--frames", "0"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+def test_bench_camera_prints_numbers(capsys):
+    import os
+
+    affinity = os.sched_getaffinity(0)
+    args = ["bench", "camera", "--scenes", "2", "--repeats", "1", "--json", *TINY]
+    assert main(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["median_ms"]["ours_320x180"] > 0 and result["median_ms"]["highway_env_topdown_640x360"] > 0
+    assert result["ratio_ours_640x360_to_highway_env"] > 0
+    assert os.sched_getaffinity(0) == affinity  # the benchmark gives the cores back
