@@ -255,11 +255,18 @@ def paint_of(vehicle_ids: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- ground
 class _Ground:
-    """The road texture and the parts of the frame that do not move (sky, ground depth)."""
+    """The road texture and the parts of the frame that do not move (sky, ground depth).
+
+    Seen from a driver's eye the road is squeezed along its length: a pixel row 30 m ahead
+    covers metres of road. Sampling the full texture there would flicker (dashes alias) and
+    read memory all over the texture, so each band of rows samples a copy of the texture
+    averaged along the road by a power of two that matches its footprint (a one-axis
+    mip-map, "rip-map"); across the road it keeps full resolution, so far lane lines stay.
+    """
 
     PX_PER_M_ALONG = 8.0
     """Texture resolution along the road [px/m]"""
-    PX_PER_M_ACROSS = 16.0
+    PX_PER_M_ACROSS = 12.0
     """Texture resolution across the road [px/m]"""
     DASH_M = 3.0
     """Length of a lane-line dash [m]"""
@@ -271,8 +278,10 @@ class _Ground:
     """Width of solid edge lines [m]"""
     SHOULDER_M = 2.5
     """Paved shoulder beyond each edge line [m]"""
-    GRASS_M = 12.0
+    GRASS_M = 6.0
     """Textured grass beyond the shoulders [m] (plain grass farther out)"""
+    LEVELS = 7
+    """Along-road averaging levels: 2, 4, ... 2^LEVELS texels per sample"""
     ASPHALT = (92, 94, 98)
     SHOULDER = (112, 112, 110)
     PAINT = (232, 232, 226)
@@ -283,8 +292,14 @@ class _Ground:
     def __init__(self, scene: RoadScene, camera: PinholeCamera, settings: RenderSettings) -> None:
         k = camera.intrinsics
         self.period_m = self.DASH_M + self.GAP_M
+        # the texture is placed in whole multiples of this, so every level stays aligned
+        self.align_m = self.period_m * 2**self.LEVELS / math.gcd(int(self.period_m * self.PX_PER_M_ALONG), 2**self.LEVELS)
         self.y0_m = scene.y_min_m - self.SHOULDER_M - self.GRASS_M
-        self.tex = self._texture(scene, settings.max_range_m)
+        tex = self._texture(scene, settings.max_range_m)
+        ny, nx = tex.shape[:2]
+        self.levels = [tex] + [
+            cv2.resize(tex, (nx >> lv, ny), interpolation=cv2.INTER_AREA) for lv in range(1, self.LEVELS + 1)
+        ]
         w, h = k.width_px, k.height_px
         # planar depth of the ground at each pixel: Z = height / (n . K^-1 [u, v, 1]),
         # n the world's down axis in the camera frame (independent of the ego's pose)
@@ -311,6 +326,18 @@ class _Ground:
         fog_rows = np.flatnonzero(alpha > 0)
         self.fog_end = int(fog_rows[-1]) + 1 if len(fog_rows) else 0
         self.fog_alpha = alpha[: self.fog_end, None, None].astype(np.float32)
+        # bands of rows by along-road footprint: texels of level 0 per pixel row (looking
+        # along the road; the ego's heading is small on a highway)
+        self.bands: list[tuple[int, int, int]] = []
+        if len(zr):
+            z_mid = np.minimum(zr, far)
+            step_m = np.abs(np.gradient(z_mid)) if len(z_mid) > 1 else np.zeros(1)
+            level = np.clip(np.floor(np.log2(np.maximum(step_m * self.PX_PER_M_ALONG, 1.0))), 0, self.LEVELS).astype(int)
+            start = 0
+            for i in range(1, len(level) + 1):
+                if i == len(level) or level[i] != level[start]:
+                    self.bands.append((self.row0 + start, self.row0 + i, int(level[start])))
+                    start = i
 
     def _texture(self, scene: RoadScene, max_range_m: float) -> np.ndarray:
         sx, sy, p = self.PX_PER_M_ALONG, self.PX_PER_M_ACROSS, self.period_m
@@ -327,26 +354,26 @@ class _Ground:
         tile[road] = np.array(self.ASPHALT)
         rng = np.random.default_rng(7)  # fixed: the texture is part of the scene, not of an episode
         grain = rng.normal(0.0, 1.0, (ny, nx_tile, 1))
-        tile += grain * np.where(paved, 3.0, 9.0)[:, None, None]
+        tile += grain * np.where(paved, 2.5, 9.0)[:, None, None]
         for line in scene.lines:
             width = self.DIVIDER_WIDTH_M if line.dashed else self.EDGE_WIDTH_M
-            rows = np.abs(ys - line.y_m) <= width / 2
-            if line.dashed:
-                tile[np.ix_(rows, xs < self.DASH_M)] = np.array(self.PAINT)
-            else:
-                tile[rows] = np.array(self.PAINT)
-        n_tiles = int(math.ceil(2 * max_range_m / p)) + 3
-        return np.ascontiguousarray(np.tile(np.clip(tile, 0, 255).astype(np.uint8), (1, n_tiles, 1)))
+            # paint coverage of each texel row (anti-aliased edges)
+            cover = np.clip((width / 2 - np.abs(ys - line.y_m)) * sy + 0.5, 0.0, 1.0)[:, None, None]
+            cols = xs < self.DASH_M if line.dashed else np.ones(nx_tile, dtype=bool)
+            tile[:, cols] = tile[:, cols] * (1 - cover) + np.array(self.PAINT) * cover
+        n_aligned = int(math.ceil((2 * max_range_m + 2 * self.align_m) / self.align_m))
+        reps = int(round(n_aligned * self.align_m / p))
+        return np.ascontiguousarray(np.tile(np.clip(tile, 0, 255).astype(np.uint8), (1, reps, 1)))
 
     def _texture_origin(self, cam_x_m: float, max_range_m: float) -> float:
-        return math.floor((cam_x_m - max_range_m - self.period_m) / self.period_m) * self.period_m
+        return math.floor((cam_x_m - max_range_m - self.align_m) / self.align_m) * self.align_m
 
     def draw(self, rgb: np.ndarray, k_mat: np.ndarray, rot: np.ndarray, t: np.ndarray, cam_x_m: float, far: float) -> None:
         """Sky, ground and haze into ``rgb`` (in place)."""
         h, w = rgb.shape[:2]
         rgb[: self.row0] = self.sky[: self.row0]
         if self.row0 >= h:
-            return None
+            return
         img_from_ground = k_mat @ np.column_stack([rot[:, 0], rot[:, 1], t])
         x0 = self._texture_origin(cam_x_m, far)
         tex_from_ground = np.array(
@@ -354,12 +381,15 @@ class _Ground:
              [0.0, self.PX_PER_M_ACROSS, -self.PX_PER_M_ACROSS * self.y0_m - 0.5],
              [0.0, 0.0, 1.0]]
         )
-        shift_rows = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, float(self.row0)], [0.0, 0.0, 1.0]])
-        m = tex_from_ground @ np.linalg.inv(img_from_ground) @ shift_rows
-        cv2.warpPerspective(
-            self.tex, m, (w, h - self.row0), dst=rgb[self.row0 :],
-            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=self.GRASS,
-        )
+        base = tex_from_ground @ np.linalg.inv(img_from_ground)
+        for r0, r1, lv in self.bands:
+            s = 1.0 / (1 << lv)
+            to_level = np.array([[s, 0.0, 0.5 * s - 0.5], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+            shift = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, float(r0)], [0.0, 0.0, 1.0]])
+            cv2.warpPerspective(
+                self.levels[lv], to_level @ base @ shift, (w, r1 - r0), dst=rgb[r0:r1],
+                flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=self.GRASS,
+            )
         if self.fog_end:
             band = rgb[self.row0 : self.row0 + self.fog_end]
             band[:] = band * (1.0 - self.fog_alpha) + np.array(self.HAZE, dtype=np.float32) * self.fog_alpha
@@ -390,8 +420,6 @@ class CameraRenderer:
         self._face_map = np.zeros(self.shape, dtype=np.int32)
         self._scratch = np.zeros(self.shape, dtype=np.uint8)
         cols, rows = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
-        self._u = cols.ravel()
-        self._v = rows.ravel()
         xn = (cols - k.cx_px) / k.fx_px
         yn = (rows - k.cy_px) / k.fy_px
         self._ray_norm = np.sqrt(1.0 + xn * xn + yn * yn).astype(np.float32)
@@ -463,20 +491,23 @@ class CameraRenderer:
         if not len(idx):
             return None
         ids = vs.ids[idx]
+        n_v = len(idx)
         length, width, heading = vs.length_m[idx], vs.width_m[idx], vs.heading_rad[idx]
-        c, sn = np.cos(heading)[:, None], np.sin(heading)[:, None]
-        lx = m.vertices[None, :, 0] * length[:, None]
-        ly = m.vertices[None, :, 1] * width[:, None]
-        wx = vs.x_m[idx][:, None] + c * lx - sn * ly
-        wy = vs.y_m[idx][:, None] + sn * lx + c * ly
-        wz = np.broadcast_to(-m.vertices[None, :, 2] * height, wx.shape)  # z down
-        pc = np.stack([wx, wy, wz], axis=2) @ rot.T + t  # (n, V, 3) camera frame
+        c, sn = np.cos(heading), np.sin(heading)
+        # vehicle frame (x fwd, y right, z up) -> camera: rot @ [heading rotation, z mirrored]
+        to_world = np.zeros((n_v, 3, 3))
+        to_world[:, 0, 0], to_world[:, 0, 1], to_world[:, 1, 0], to_world[:, 1, 1] = c, -sn, sn, c
+        to_world[:, 2, 2] = -1.0
+        to_cam = rot @ to_world  # (n, 3, 3)
+        origin = np.stack([vs.x_m[idx], vs.y_m[idx], np.zeros(n_v)], axis=1) @ rot.T + t  # (n, 3)
+        scale = np.stack([length, width, np.full(n_v, height)], axis=1)  # (n, 3)
+        pc = (m.vertices[None] * scale[:, None, :]) @ to_cam.transpose(0, 2, 1) + origin[:, None, :]  # (n, V, 3)
         # --- faces: outward normals (scaled template normals), back-face culling, shading
-        ns = m.normals[None] / np.stack([length, width, np.full(len(idx), height)], axis=1)[:, None, :]
+        ns = m.normals[None] / scale[:, None, :]
         ns /= np.linalg.norm(ns, axis=2, keepdims=True)
-        nwx, nwy, nwz = c * ns[..., 0] - sn * ns[..., 1], sn * ns[..., 0] + c * ns[..., 1], ns[..., 2]
-        shade = 0.42 + 0.58 * np.clip(nwx * _SUN[0] + nwy * _SUN[1] + nwz * _SUN[2], 0.0, None)
-        normal = np.stack([nwx, nwy, -nwz], axis=2) @ rot.T  # camera frame
+        sun_local = np.stack([c * _SUN[0] + sn * _SUN[1], -sn * _SUN[0] + c * _SUN[1], np.full(n_v, _SUN[2])], axis=1)
+        shade = 0.42 + 0.58 * np.clip(np.einsum("nfk,nk->nf", ns, sun_local), 0.0, None)
+        normal = ns @ to_cam.transpose(0, 2, 1)  # camera frame
         d = np.einsum("nfk,nfk->nf", normal, pc[:, m.faces[:, 0]])  # plane: normal . P = d
         front = d < -1e-9  # the camera is on the outer side of the face's plane
         paint = paint_of(ids)
@@ -560,11 +591,13 @@ class CameraRenderer:
         fm = face_map.ravel()
         pix = np.flatnonzero(fm > 0)
         f = fm[pix]
-        inv_z = np.take(lut[0], f) * self._u[pix] + np.take(lut[1], f) * self._v[pix] + np.take(lut[2], f)
+        row, col = np.divmod(pix, w_img)
+        inv_z = np.take(lut[0], f) * col + np.take(lut[1], f) * row + np.take(lut[2], f)
         depth.ravel()[pix] = 1.0 / inv_z
         lut_vid = np.zeros(len(rv) + 1, dtype=np.int32)
         lut_vid[1:] = ids[rv]
-        instance = np.take(lut_vid, face_map)
+        instance = np.zeros((h_img, w_img), dtype=np.int32)
+        instance.ravel()[pix] = np.take(lut_vid, f)
         # --- ground truth: visible boxes and visibility from the instance map
         rng_c = np.linalg.norm(centres[idx], axis=1).tolist()
         depth_c = zc[idx].tolist()
