@@ -553,35 +553,47 @@ class CameraRenderer:
         colour_list = np.clip(colour, 0, 255).astype(np.int64).tolist()
         front_list = front.tolist()
         poly_pts = np.ascontiguousarray(fixed[:, self._polys])  # (n, F + D, 4, 2)
-        rec_v: list[int] = []
+        rec_v: list[int] = []  # per painted polygon: its vehicle and its face or decal code
         rec_code: list[int] = []
         amodal_px: dict[int, int] = {}
         detail = s.detail_min_px
         w_img, h_img = k.width_px, k.height_px
         fill, line, in_range, count = cv2.fillConvexPoly, cv2.LINE_8, cv2.inRange, cv2.countNonZero
+        box_list = boxes.tolist()
+        # each vehicle's window in the image: its amodal box, clipped, with a pixel to spare
+        safe = np.nan_to_num(boxes)
+        windows = np.stack([
+            np.clip(np.floor(safe[:, 0]), 0, w_img), np.clip(np.floor(safe[:, 1]), 0, h_img),
+            np.clip(np.ceil(safe[:, 2]) + 2, 0, w_img), np.clip(np.ceil(safe[:, 3]) + 2, 0, h_img),
+        ], axis=1).astype(int).tolist()
+        n_painted = 0
         for i in order:
-            bx0, by0, bx1, by1 = boxes[i].tolist()
-            x0, y0 = max(0, int(math.floor(bx0))), max(0, int(math.floor(by0)))
-            x1, y1 = min(w_img, int(math.ceil(bx1)) + 2), min(h_img, int(math.ceil(by1)) + 2)
+            bx0, by0, bx1, by1 = box_list[i]
+            x0, y0, x1, y1 = windows[i]
+            col = colour_list[i]
+            k0 = n_painted + 1
             if i in clipped:
-                polys = clipped[i]
+                codes = [code for code, _ in clipped[i]]
+                for code, pts in clipped[i]:
+                    n_painted += 1
+                    fill(face_map, pts, n_painted, line, _SHIFT)
+                    fill(rgb, pts, col[code], line, _SHIFT)
             else:
                 fr, pts_i = front_list[i], poly_pts[i]
                 if bx1 - bx0 >= detail:
-                    polys = [(c, pts_i[c]) for f in face_seq if fr[f] for c in with_decals_seq[f]]
+                    codes = [c for f in face_seq if fr[f] for c in with_decals_seq[f]]
                 else:
-                    polys = [(f, pts_i[f]) for f in face_seq if fr[f]]
-            col = colour_list[i]
-            k0 = len(rec_v) + 1
-            for code, pts in polys:
-                rec_v.append(i)
-                rec_code.append(code)
-                fill(face_map, pts, len(rec_v), line, _SHIFT)
-                fill(rgb, pts, col[code], line, _SHIFT)
+                    codes = [f for f in face_seq if fr[f]]
+                for code in codes:
+                    n_painted += 1
+                    pts = pts_i[code]
+                    fill(face_map, pts, n_painted, line, _SHIFT)
+                    fill(rgb, pts, col[code], line, _SHIFT)
+            rec_v.extend([i] * len(codes))
+            rec_code.extend(codes)
             # nothing nearer is painted yet: the vehicle's face ids in its window are its
             # whole (amodal) in-image shape
-            win = face_map[y0:y1, x0:x1]
-            amodal_px[i] = count(in_range(win, k0, len(rec_v))) if win.size and len(rec_v) >= k0 else 0
+            amodal_px[i] = count(in_range(face_map[y0:y1, x0:x1], k0, n_painted)) if n_painted >= k0 and x1 > x0 and y1 > y0 else 0
         if not rec_v:
             return None
         rv, rc = np.array(rec_v), np.array(rec_code)
@@ -601,18 +613,19 @@ class CameraRenderer:
         # --- ground truth: visible boxes and visibility from the instance map
         rng_c = np.linalg.norm(centres[idx], axis=1).tolist()
         depth_c = zc[idx].tolist()
+        id_list = ids.tolist()
         for i in order:
-            vid = int(ids[i])
-            bx0, by0, bx1, by1 = boxes[i].tolist()
-            x0, y0 = max(0, int(math.floor(bx0))), max(0, int(math.floor(by0)))
-            x1, y1 = min(w_img, int(math.ceil(bx1)) + 2), min(h_img, int(math.ceil(by1)) + 2)
-            mask = (instance[y0:y1, x0:x1] == vid).view(np.uint8)
-            n_vis = cv2.countNonZero(mask) if mask.size else 0
-            visible_box = None
-            if n_vis:
-                rx, ry, rw, rh = cv2.boundingRect(mask)
-                visible_box = (x0 + rx - 0.5, y0 + ry - 0.5, x0 + rx + rw - 0.5, y0 + ry + rh - 0.5)
+            vid = id_list[i]
+            bx0, by0, bx1, by1 = box_list[i]
+            x0, y0, x1, y1 = windows[i]
             n_amodal = amodal_px[i]
+            n_vis, visible_box = 0, None
+            if n_amodal:
+                mask = in_range(instance[y0:y1, x0:x1], vid, vid)
+                n_vis = count(mask)
+                if n_vis:
+                    rx, ry, rw, rh = cv2.boundingRect(mask)
+                    visible_box = (x0 + rx - 0.5, y0 + ry - 0.5, x0 + rx + rw - 0.5, y0 + ry + rh - 0.5)
             truths[vid] = VehicleTruth(  # positional: this runs for every vehicle of every frame
                 vid, visible_box, (bx0, by0, bx1, by1), min(1.0, n_vis / n_amodal) if n_amodal else 0.0, n_vis,
                 n_amodal, depth_c[i], rng_c[i], bx0 < -0.5 or by0 < -0.5 or bx1 > w_img - 0.5 or by1 > h_img - 0.5,
