@@ -20,8 +20,8 @@ How a frame is made
    a topological sort of those relations gives the painting order (for disjoint convex
    footprints seen from a point such an order always exists). Inside a car, back faces are
    culled and the cabin is painted after the body when the camera is above the body's top
-   (before it otherwise), which is exact too. Each painted polygon writes its id into a
-   face map; the RGB, depth and instance images are read from it.
+   (before it otherwise), which is exact too. Each painted polygon writes its colour into
+   the RGB image and its id into a face map, from which depth and instance ids are read.
 4. **Depth.** On a planar face ``1 / Z`` is affine in the pixel coordinates, so each
    pixel's depth is exact for the face it shows (no interpolation error).
 
@@ -418,7 +418,6 @@ class CameraRenderer:
         self._k = k.matrix
         self._ground = _Ground(scene, camera, settings)
         self._face_map = np.zeros(self.shape, dtype=np.int32)
-        self._scratch = np.zeros(self.shape, dtype=np.uint8)
         cols, rows = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
         xn = (cols - k.cx_px) / k.fx_px
         yn = (rows - k.cy_px) / k.fy_px
@@ -426,7 +425,7 @@ class CameraRenderer:
         self._kx = max(k.cx_px + 0.5, k.width_px - 0.5 - k.cx_px) / k.fx_px
         self._ky = max(k.cy_px + 0.5, k.height_px - 0.5 - k.cy_px) / k.fy_px
         m = self.model
-        # per model: the decals of each face, and the drawing list of each part
+        # the decals lying on each face, and every polygon's vertex indices
         self._face_decals = [
             [len(m.faces) + j for j in np.flatnonzero(m.decal_face == f)] for f in range(len(m.faces))
         ]
