@@ -294,6 +294,8 @@ class CameraConfig(_Section):
     width_px: int = Field(640, ge=16, le=4096, description="image width [px]")
     height_px: int = Field(360, ge=16, le=4096, description="image height [px]")
     hfov_deg: float = Field(90.0, ge=5, le=170, description="horizontal field of view [deg]")
+    cx_px: float | None = Field(None, description="principal point u [px] (None: the image centre)")
+    cy_px: float | None = Field(None, description="principal point v [px] (None: the image centre)")
     mount: CameraMountConfig = Field(default_factory=CameraMountConfig)
     near_m: float = Field(0.1, gt=0, le=10, description="near plane: nothing nearer is drawn [m]")
     max_range_m: float = Field(200.0, gt=0, le=2000, description="farthest distance drawn; depth saturates there [m]")
@@ -306,6 +308,10 @@ class CameraConfig(_Section):
     def _consistent(self) -> CameraConfig:
         if self.max_range_m <= self.near_m:
             raise ValueError(f"max_range_m must exceed near_m = {self.near_m} (got {self.max_range_m})")
+        if self.cx_px is not None and not 0 <= self.cx_px <= self.width_px - 1:
+            raise ValueError(f"cx_px must lie in the image, 0..{self.width_px - 1} (got {self.cx_px})")
+        if self.cy_px is not None and not 0 <= self.cy_px <= self.height_px - 1:
+            raise ValueError(f"cy_px must lie in the image, 0..{self.height_px - 1} (got {self.cy_px})")
         return self
 
 

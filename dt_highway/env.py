@@ -149,7 +149,7 @@ def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
     """Build the renderer described by a ``camera`` config section for a road."""
     m = cfg.mount
     camera = PinholeCamera(
-        Intrinsics.from_fov(cfg.width_px, cfg.height_px, math.radians(cfg.hfov_deg)),
+        Intrinsics.from_fov(cfg.width_px, cfg.height_px, math.radians(cfg.hfov_deg), cfg.cx_px, cfg.cy_px),
         Mount(m.forward_m, m.lateral_m, m.height_m, math.radians(m.pitch_deg), math.radians(m.yaw_deg)),
         near_m=cfg.near_m,
     )

@@ -111,3 +111,16 @@ def test_camera_off_by_default_and_errors(cfg, small_config):
         DTHighwayEnv(config={"camera": {"near_m": 5.0, "max_range_m": 2.0}})
     with pytest.raises(ConfigError, match="camera.width_px"):
         DTHighwayEnv(config={"camera": {"width_px": 0}})
+    with pytest.raises(ConfigError, match="cx_px must lie in the image"):
+        DTHighwayEnv(config={"camera": {"cx_px": 700.0}})
+
+
+def test_principal_point_moves_the_image(cfg):
+    frames = []
+    for cx in (None, 60.0):
+        env = DTHighwayEnv(config=cfg(camera={"cx_px": cx}))
+        env.reset(seed=1)
+        assert env.camera.camera.intrinsics.cx_px == (79.5 if cx is None else cx)
+        frames.append(env.camera_frame().rgb)
+        env.close()
+    assert frames[0].tobytes() != frames[1].tobytes()
