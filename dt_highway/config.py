@@ -19,7 +19,7 @@ from __future__ import annotations
 import copy
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -315,6 +315,32 @@ class CameraConfig(_Section):
         return self
 
 
+# ----------------------------------------------------------------------------- perception and fusion
+class DetectorConfig(_Section):
+    """The detector that finds vehicles in the camera frame (:mod:`dt_highway.perception.detect`)."""
+
+    kind: Literal["simulated"] = Field("simulated", description="'simulated': ground truth plus realistic errors")
+    jitter: float = Field(0.03, ge=0, le=0.5, description="box edge noise, fraction of the box's size [-]")
+    miss_height_px: float = Field(6.0, ge=0, description="visible height missed half of the time [px]")
+    miss_visibility: float = Field(0.25, ge=0, le=1, description="visibility missed half of the time [-]")
+    merge_overlap: float = Field(0.5, gt=0, le=1, description="overlap (of the smaller box) from which boxes may merge [-]")
+    merge_prob: float = Field(0.5, ge=0, le=1, description="probability that such a pair comes out as one box [-]")
+    false_positives_per_frame: float = Field(0.05, ge=0, le=20, description="mean spurious boxes per frame [-]")
+
+
+class FusionConfig(_Section):
+    """Camera + twin fusion and the ADAS output (:mod:`dt_highway.perception.fusion`)."""
+
+    enabled: bool = Field(False, description="run detector and fusion every step; overlay items in info['adas']")
+    method: Literal["baseline", "fusion", "joint", "tracked"] = Field("tracked", description="matching method")
+    th: float = Field(0.2, ge=0, lt=1, description="Algorithm 1: box resize threshold [-]")
+    n_samples: int = Field(20, ge=1, le=10000, description="Algorithm 1: sample points per box [-]")
+    fallback: Literal["none", "nearest"] = Field("none", description="Algorithm 2 when no box holds the anchor")
+    anchor_height_m: float = Field(0.75, ge=0, le=5, description="height of the GNSS point [m]")
+    near_face_m: float = Field(2.5, ge=0, le=20, description="joint/tracked: GNSS point to near face [m]")
+    continuity_bonus: float = Field(0.5, ge=0, le=10, description="tracked: cost taken off keeping a track [-]")
+
+
 # ----------------------------------------------------------------------------- root
 class DTConfig(_Section):
     """The whole configuration of a dt-highway env."""
@@ -324,11 +350,17 @@ class DTConfig(_Section):
     traffic: TrafficConfig = Field(default_factory=TrafficConfig)
     twin: TwinConfig = Field(default_factory=TwinConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
+    fusion: FusionConfig = Field(default_factory=FusionConfig)
 
     @model_validator(mode="after")
     def _camera_for_observation(self) -> DTConfig:
         if self.highway.observation.get("type") == "Camera" and not self.camera.enabled:
             raise ValueError("highway.observation.type = 'Camera' needs camera.enabled = true")
+        if self.fusion.enabled and not self.camera.enabled:
+            raise ValueError("fusion.enabled = true needs camera.enabled = true")
+        if self.fusion.enabled and not self.twin.enabled:
+            raise ValueError("fusion.enabled = true needs twin.enabled = true")
         return self
 
     def to_dict(self) -> dict[str, Any]:
@@ -374,7 +406,7 @@ def _describe(err: dict[str, Any]) -> str:
         bound = next(iter(ctx.values()), "?")
         return f"{dotted} = {shown} is out of range: must be {op} {bound}"
     if isinstance(value, dict) and kind == "value_error":
-        return f"{dotted}: {msg}"
+        return f"{dotted}: {msg}" if loc else msg
     if kind == "model_type" or kind == "dict_type":
         return f"{dotted} must be a table of keys (got {shown})"
     return f"{dotted} = {shown}: {msg}"

@@ -36,6 +36,7 @@ from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
+from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
 from dt_highway.traffic import (
     EGO_ID,
     DriverPopulation,
@@ -187,6 +188,9 @@ class DTHighwayEnv(HighwayEnv):
         self._frame: CameraFrame | None = None
         self._frame_key: tuple[int, int] | None = None
         self._episode = 0
+        self.detector = None
+        self.fusion: Fusion | None = None
+        self.adas: dict[str, Any] | None = None
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
         super().__init__(config, render_mode)
@@ -258,7 +262,7 @@ class DTHighwayEnv(HighwayEnv):
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))
-        names = ("traffic", "uplink", "downlink")
+        names = ("traffic", "uplink", "downlink", "detector", "fusion")
         return {n: np.random.default_rng(s) for n, s in zip(names, np.random.SeedSequence(seed).spawn(len(names)))}
 
     def _build_persistent(self) -> None:
@@ -327,6 +331,12 @@ class DTHighwayEnv(HighwayEnv):
         self._episode += 1
         self._frame, self._frame_key = None, None
         self._build_camera()
+        self.adas = None
+        if cfg.fusion.enabled:
+            self.detector = make_detector(cfg.detector, rngs["detector"])
+            self.fusion = Fusion(self.camera.camera, fusion_settings(cfg.fusion), rngs["fusion"])
+        else:
+            self.detector, self.fusion = None, None
 
     def _build_camera(self) -> None:
         """The camera renderer for this road (kept across episodes while nothing changes)."""
@@ -386,17 +396,42 @@ class DTHighwayEnv(HighwayEnv):
         self.traffic.populate(self.road, ego, hw.vehicles_count)
 
     def _preroll(self, n_steps: int) -> None:
-        """Run traffic (ego on the IDM autopilot) for ``n_steps`` simulation steps before t = 0."""
+        """Run traffic (ego on the IDM autopilot) for ``n_steps`` simulation steps before t = 0.
+
+        The ego cannot be hit during the pre-roll (a cut-in there would end the episode before
+        it starts); NPCs still see it and keep their distance. Any NPC left overlapping it at
+        the end is taken off the road.
+        """
         autopilot = self.dt_config.ego.autopilot
         if not autopilot:
             self._swap_ego(self._autopilot_from(self.vehicle))
+        self.vehicle.collidable = False
         for _ in range(n_steps):
             self._sim_step()
+        self.vehicle.collidable = True
         if not autopilot:
             stand_in = self.vehicle
             ego = self.action_type.vehicle_class(self.road, stand_in.position, stand_in.heading, stand_in.speed)
             ego.dt_id, ego.dt_connected = EGO_ID, stand_in.dt_connected
             self._swap_ego(ego)
+        self._clear_around_ego()
+
+    def _clear_around_ego(self) -> None:
+        """Take off the road NPCs that overlap the ego (or will within one step), so that t = 0 starts clean."""
+        ego = self.vehicle
+        dt = 1.0 / self.config["simulation_frequency"]
+        keep = []
+        for v in self.road.vehicles:
+            if v is not ego and abs(v.position[0] - ego.position[0]) < 2 * v.LENGTH:
+                intersecting, will_intersect, _ = ego._is_colliding(v, dt)
+                if intersecting or will_intersect:
+                    if self.traffic is not None:
+                        self.traffic.remove(v)
+                    if self.uplink is not None:
+                        self.uplink.forget(vehicle_id(v))
+                    continue
+            keep.append(v)
+        self.road.vehicles[:] = keep
 
     def _autopilot_from(self, ego: Vehicle) -> IDMVehicle:
         """An IDM vehicle (no lane changes) in the ego's place and state."""
@@ -488,8 +523,40 @@ class DTHighwayEnv(HighwayEnv):
         if self.camera is not None:
             # the camera's ground truth (instance boxes); the images are on camera_frame()
             info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_frame().vehicles.values()]
+        if self.fusion is not None:
+            self.adas = self._run_fusion()
+            info["adas"] = self.adas
         self._events = []
         return info
+
+    def _run_fusion(self) -> dict[str, Any]:
+        """Detector and fusion on this step's frame: the ADAS output (never ground truth).
+
+        :return: ``overlay``: one item per vehicle the twin tags aggressive and the fusion
+            placed in the image (``vehicle_id``, ``box`` [px], ``label``, ``confidence``,
+            ``distance_m``); ``placements``: every placed connected vehicle; ``n_boxes``
+        """
+        frame = self.camera_frame()
+        detections: Detections = self.detector.detect(frame)
+        view = self.twin_view.vehicles if self.twin_view is not None else ()
+        placements = self.fusion.step(frame, detections, view, self.twin_now_s)
+        tags = {v.vehicle_id: v for v in view}
+        overlay = []
+        for vid, p in placements.items():
+            if p.box is None:
+                continue
+            tv = tags[vid]
+            if tv.tag == AGGRESSIVE:
+                overlay.append({
+                    "vehicle_id": vid, "box": list(p.box), "label": "aggressive driver",
+                    "confidence": float(tv.confidence), "distance_m": p.distance_m, "rule": p.rule,
+                })
+        return {
+            "overlay": overlay,
+            "placements": {vid: list(p.box) for vid, p in placements.items() if p.box is not None},
+            "n_boxes": len(detections),
+            "method": self.fusion.settings.method,
+        }
 
     def _twin_info(self) -> list[dict[str, Any]] | None:
         """The delivered twin view with times on the episode clock [s] and ages [s]."""

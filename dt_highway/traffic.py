@@ -371,6 +371,11 @@ class TrafficManager:
         self._left_at = {i: t for i, t in self._left_at.items() if t > cutoff}
         return [i for i in self.population.drivers if i not in on_road and i not in self._left_at]
 
+    def remove(self, v: Vehicle) -> None:
+        """Note that ``v`` was taken off the road by the env; a driver re-enters at the far edge behind."""
+        self._leave(v)
+        self._owed_behind += 1
+
     def _leave(self, v: Vehicle) -> None:
         vid = vehicle_id(v)
         self._left_at[vid] = self.time_s

@@ -1,0 +1,265 @@
+"""The fusion of camera and cloud twin: which box in the image is which connected vehicle.
+
+One :class:`Fusion` per ego, fed frame by frame with the camera frame, the detector's boxes
+and the twin view the ego has received. Methods (``FusionSettings.method``):
+
+* ``baseline``: the paper's RGB-only approach: anchor (the twin's GNSS position projected,
+  section III-A) inside a box; among several, the box whose centre is nearest the anchor.
+* ``fusion``: the paper's method: Algorithm 1 (depth evaluation, mean) + Algorithm 2
+  (distance matching), one target at a time, with the twin position as received.
+* ``joint``: latency compensation (each twin position moved to the frame's time at its
+  reported speed and heading), the vehicle's whole expected outline projected when its
+  anchor is off the image (a vehicle beside the ego, whose centre is not in view), robust
+  depth (median), GNSS distance moved to the vehicle's near face, and all connected
+  vehicles in view assigned to boxes at once (Hungarian).
+* ``tracked``: ``joint`` on SORT tracks instead of raw boxes, with each vehicle keeping its
+  track from frame to frame: it survives missed and merged detections and stale GNSS.
+
+Nothing here reads ground truth: inputs are the image-side detections and depth, the
+twin's message, the camera model and the ego's pose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from dt_highway.camera.pinhole import PinholeCamera
+from dt_highway.camera.render import CameraFrame
+from dt_highway.perception.depth import box_distances
+from dt_highway.perception.detect import Detections
+from dt_highway.perception.matching import JointCost, match_baseline, match_distance, match_joint
+from dt_highway.perception.tracking import BoxTracker
+from dt_highway.twin.cloud import TwinVehicleView
+
+_BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (0.0, 1.0)])
+"""Corners of a unit box around a vehicle's centre on the road (x fwd, y right, z up)"""
+_BOX_EDGES = np.array([[i, j] for i in range(8) for j in range(i + 1, 8)
+                       if np.sum(_BOX_CORNERS[i] != _BOX_CORNERS[j]) == 1])
+"""The 12 edges of that box"""
+
+Method = Literal["baseline", "fusion", "joint", "tracked"]
+METHODS: tuple[str, ...] = ("baseline", "fusion", "joint", "tracked")
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Settings of :class:`Fusion`.
+
+    :param method: ``baseline``, ``fusion`` (the paper), ``joint`` or ``tracked``
+    :param th: Algorithm 1's box resize threshold [-]
+    :param n_samples: Algorithm 1's sample points per box [-]
+    :param fallback: Algorithm 2 (and baseline) when no box contains the anchor: ``none`` or ``nearest``
+    :param anchor_height_m: height of the GNSS point above the road [m] (mid-height of a car)
+    :param near_face_m: for ``joint``/``tracked``: the depth image sees a vehicle's near
+        face, about half a length in front of its GNSS point; this much is taken off the
+        GNSS distance before comparing [m]
+    :param continuity_bonus: for ``tracked``: cost taken off keeping last frame's track [-]
+    :param coast_penalty: for ``tracked``: cost added to a track without a detection this frame [-]
+    :param position_sigma_m: for ``joint``/``tracked``: expected error of a twin position [m]
+        (GNSS noise plus what latency compensation leaves); widens the anchor's tolerance
+    :param assumed_length_m: for ``joint``/``tracked``: length of a vehicle's expected outline [m]
+        (the twin does not send sizes; highway-env's cars are 5 m x 2 m)
+    :param assumed_width_m: its width [m]
+    :param assumed_height_m: its height [m]
+    :param joint: the joint assignment's cost weights
+    """
+
+    method: Method = "tracked"
+    th: float = 0.2
+    n_samples: int = 20
+    fallback: Literal["none", "nearest"] = "none"
+    anchor_height_m: float = 0.75
+    near_face_m: float = 2.5
+    continuity_bonus: float = 0.5
+    coast_penalty: float = 0.3
+    position_sigma_m: float = 1.0
+    assumed_length_m: float = 5.0
+    assumed_width_m: float = 2.0
+    assumed_height_m: float = 1.5
+    joint: JointCost = JointCost()
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)} (got {self.method!r})")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the fusion put one connected vehicle in the image.
+
+    :param vehicle_id: the twin's id of the vehicle
+    :param box: its box ``x1, y1, x2, y2`` [px], ``None`` when it was not placed
+    :param distance_m: the box's distance from Algorithm 1 [m] (NaN without a box)
+    :param gnss_distance_m: planar depth of its (compensated) GNSS point [m]
+    :param anchor_uv: the anchor pixel (NaN when behind the camera)
+    :param rule: how the box was chosen (see :mod:`~dt_highway.perception.matching`),
+        ``"joint"`` or ``"track"`` for the joint methods, ``"none"`` without a box
+    """
+
+    vehicle_id: int
+    box: tuple[float, float, float, float] | None
+    distance_m: float
+    gnss_distance_m: float
+    anchor_uv: tuple[float, float]
+    rule: str
+
+
+class Fusion:
+    """Places the twin's connected vehicles on the camera's boxes, frame after frame.
+
+    :param camera: the ego's camera model (the renderer's ``camera``)
+    :param settings: method and parameters
+    :param rng: random generator of Algorithm 1's sampling
+    """
+
+    def __init__(self, camera: PinholeCamera, settings: FusionSettings = FusionSettings(),
+                 rng: np.random.Generator | None = None) -> None:
+        self.camera = camera
+        self.settings = settings
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.tracker = BoxTracker()
+        self._track_of: dict[int, int] = {}
+
+    def reset(self) -> None:
+        """Forget the tracks (new episode)."""
+        self.tracker.reset()
+        self._track_of = {}
+
+    def anchors(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float,
+                compensate: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Anchor pixels and GNSS planar depths of twin vehicles (coordinate transform, III-A).
+
+        :param frame: the camera frame (its pose is the ego's)
+        :param twin: the twin's vehicles as received
+        :param now_s: the frame's time on the twin's clock [s]
+        :param compensate: move each position forward by its age at its speed and heading
+        :return: ``(K, 2)`` pixels (NaN when behind the camera) and ``(K,)`` planar depths [m]
+        """
+        if not twin:
+            return np.zeros((0, 2)), np.zeros(0)
+        pts = np.array([[v.x_m, v.y_m, v.speed_mps, v.heading_rad, v.t_fix_s] for v in twin], dtype=float)
+        x, y = pts[:, 0], pts[:, 1]
+        if compensate:
+            age = np.clip(now_s - pts[:, 4], 0.0, None)
+            age = np.where(np.isfinite(age), age, 0.0)
+            x = x + pts[:, 2] * np.cos(pts[:, 3]) * age
+            y = y + pts[:, 2] * np.sin(pts[:, 3]) * age
+        world = np.stack([x, y, np.full(len(x), self.settings.anchor_height_m)], axis=1)
+        proj = self.camera.project(world, frame.pose)
+        depth = np.where(proj.in_front, proj.depth_m, np.nan)
+        return proj.uv_px, depth
+
+    def expected_boxes(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
+        """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
+        its compensated position and heading) projected and clipped to the image.
+
+        :return: ``(K, 4)`` boxes [px], NaN rows for vehicles not in view
+        """
+        s, k = self.settings, self.camera.intrinsics
+        if not twin:
+            return np.zeros((0, 4))
+        pts = np.array([[v.x_m, v.y_m, v.speed_mps, v.heading_rad, v.t_fix_s] for v in twin], dtype=float)
+        age = np.clip(np.nan_to_num(now_s - pts[:, 4]), 0.0, None)
+        c, sn = np.cos(pts[:, 3]), np.sin(pts[:, 3])
+        x = pts[:, 0] + pts[:, 2] * c * age
+        y = pts[:, 1] + pts[:, 2] * sn * age
+        lx = _BOX_CORNERS[:, 0] * s.assumed_length_m
+        ly = _BOX_CORNERS[:, 1] * s.assumed_width_m
+        world = np.stack([x[:, None] + c[:, None] * lx - sn[:, None] * ly,
+                          y[:, None] + sn[:, None] * lx + c[:, None] * ly,
+                          np.broadcast_to(_BOX_CORNERS[:, 2] * s.assumed_height_m, (len(x), 8))], axis=2)
+        pc = self.camera.to_camera(world.reshape(-1, 3), frame.pose).reshape(-1, 8, 3)
+        near = self.camera.near_m + 1e-3
+        p, q = pc[:, _BOX_EDGES[:, 0]], pc[:, _BOX_EDGES[:, 1]]
+        straddle = (p[..., 2] > near) != (q[..., 2] > near)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (near - p[..., 2]) / (q[..., 2] - p[..., 2])
+        cut = p + t[..., None] * (q - p)
+        cand = np.concatenate([pc, cut], axis=1)  # (K, 20, 3)
+        ok = np.concatenate([pc[..., 2] > near, straddle], axis=1)
+        z = np.where(ok, cand[..., 2], 1.0)
+        u = k.fx_px * np.where(ok, cand[..., 0], 0.0) / z + k.cx_px
+        v = k.fy_px * np.where(ok, cand[..., 1], 0.0) / z + k.cy_px
+        box = np.stack([np.where(ok, u, np.inf).min(1), np.where(ok, v, np.inf).min(1),
+                        np.where(ok, u, -np.inf).max(1), np.where(ok, v, -np.inf).max(1)], axis=1)
+        box[:, [0, 2]] = np.clip(box[:, [0, 2]], -0.5, k.width_px - 0.5)
+        box[:, [1, 3]] = np.clip(box[:, [1, 3]], -0.5, k.height_px - 0.5)
+        empty = ~ok.any(axis=1) | (box[:, 2] - box[:, 0] < 0.5) | (box[:, 3] - box[:, 1] < 0.5)
+        box[empty] = np.nan
+        return box
+
+    def step(self, frame: CameraFrame, detections: Detections, twin: Sequence[TwinVehicleView],
+             now_s: float) -> dict[int, Placement]:
+        """Place every connected vehicle of the twin view on a box of this frame.
+
+        :param frame: the camera frame (RGB, depth, pose)
+        :param detections: the detector's boxes for this frame
+        :param twin: the twin's vehicles as received by the ego (may be empty)
+        :param now_s: the frame's time on the twin's clock [s] (for latency compensation)
+        :return: a placement per twin vehicle, keyed by its id
+        """
+        s = self.settings
+        twin = [v for v in twin if v is not None and math.isfinite(v.x_m) and math.isfinite(v.y_m)]
+        boxes = np.asarray(detections.boxes, dtype=float).reshape(-1, 4)
+        if s.method == "tracked":
+            # candidates: every detection (with the track it fed) and the predicted boxes of
+            # established tracks that got no detection (missed, merged or hidden)
+            self.tracker.update(boxes)
+            coasting = self.tracker.coasting()
+            track_ids = list(self.tracker.detection_tracks) + [t.track_id for t in coasting]
+            is_coasting = np.array([False] * len(boxes) + [True] * len(coasting))
+            boxes = np.concatenate([boxes, np.array([t.box for t in coasting]).reshape(-1, 4)])
+        joint = s.method in ("joint", "tracked")
+        anchors, gnss = self.anchors(frame, twin, now_s, compensate=joint)
+        if not twin:
+            return {}
+        dist = box_distances(frame.depth_m, boxes, s.th, s.n_samples, self.rng,
+                             reducer="median" if joint else "mean")
+        out: dict[int, Placement] = {}
+
+        def place(k: int, idx: int | None, rule: str) -> None:
+            v = twin[k]
+            box = None if idx is None else tuple(float(c) for c in boxes[idx])
+            out[v.vehicle_id] = Placement(v.vehicle_id, box, float(dist[idx]) if idx is not None else math.nan,
+                                          float(gnss[k]), (float(anchors[k, 0]), float(anchors[k, 1])),
+                                          rule if idx is not None else "none")
+
+        if not joint:
+            for k in range(len(twin)):
+                if s.method == "baseline":
+                    m = match_baseline(anchors[k], boxes, s.fallback)
+                else:
+                    m = match_distance(anchors[k], boxes, dist, float(gnss[k]), s.fallback)
+                place(k, m.index, m.rule)
+            return out
+        extra = None
+        if s.method == "tracked" and len(boxes):
+            extra = np.zeros((len(twin), len(boxes)))
+            pos = {tid: j for j, tid in enumerate(track_ids) if tid is not None}
+            # a coasting track (no detection this frame) is less sure than a detected box
+            extra += s.coast_penalty * is_coasting[None, :]
+            for k, v in enumerate(twin):
+                j = pos.get(self._track_of.get(v.vehicle_id, -2))
+                if j is not None:
+                    extra[k, j] -= s.continuity_bonus
+        # a vehicle whose anchor is off the image (beside the ego) is matched by its outline
+        k_int = self.camera.intrinsics
+        off = ~(np.isfinite(anchors).all(axis=1) & (anchors[:, 0] >= -0.5) & (anchors[:, 0] <= k_int.width_px - 0.5)
+                & (anchors[:, 1] >= -0.5) & (anchors[:, 1] <= k_int.height_px - 0.5))
+        expected = np.where(off[:, None], self.expected_boxes(frame, twin, now_s), np.nan)
+        sigma_px = k_int.fx_px * s.position_sigma_m / np.maximum(gnss, 1.0)
+        chosen = match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
+                             expected_boxes=expected, anchor_sigma_px=sigma_px)
+        for k, idx in enumerate(chosen):
+            place(k, idx, "track" if s.method == "tracked" else "joint")
+            if s.method == "tracked":
+                if idx is not None and track_ids[idx] is not None:
+                    self._track_of[twin[k].vehicle_id] = track_ids[idx]
+                else:
+                    self._track_of.pop(twin[k].vehicle_id, None)
+        return out

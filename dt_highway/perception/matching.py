@@ -1,0 +1,246 @@
+"""Which detected box is the target: the paper's Algorithm 2, its RGB-only baseline, and a
+joint assignment of all connected vehicles at once.
+
+The anchor point is the target's GNSS position projected into the image (section III-A,
+:meth:`~dt_highway.camera.pinhole.PinholeCamera.project`).
+
+* :func:`match_baseline` (RGB only): the boxes that contain the anchor; one -> that box;
+  several -> the one whose centre is nearest the anchor; none -> the fallback.
+* :func:`match_distance` (Algorithm 2): the boxes that contain the anchor; one -> that box;
+  several -> the one whose depth distance ``d_j`` (Algorithm 1) is nearest the GNSS
+  distance ``D_g``, i.e. the smallest ``|d_j - D_g|`` (the paper writes ``d_j - D_g``; the
+  absolute value is meant); none -> the fallback.
+* Fallback when no box contains the anchor: ``"none"`` (no match, the default, as in the
+  paper) or ``"nearest"`` (the box whose edge is nearest the anchor, within
+  ``max_fallback_px``).
+* :func:`match_joint`: every connected vehicle in view against every box at once
+  (Hungarian assignment, ``scipy.optimize.linear_sum_assignment``) on a cost of
+  reprojection error and depth residual, so that two vehicles cannot take the same box and a
+  box already explained by one twin vehicle is not given to another.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+Fallback = Literal["none", "nearest"]
+
+#: why a box was chosen (or not)
+RULES = ("single", "depth", "centre", "fallback", "none")
+
+
+@dataclass(frozen=True)
+class Match:
+    """The outcome of matching one target.
+
+    :param index: index of the chosen box, ``None`` when there is no match
+    :param rule: ``"single"`` (only one box contains the anchor), ``"depth"`` (several:
+        Algorithm 2's depth rule), ``"centre"`` (several: nearest centre), ``"fallback"``
+        (no box contains the anchor), ``"none"`` (no match)
+    :param candidates: indices of the boxes that contain the anchor
+    """
+
+    index: int | None
+    rule: str
+    candidates: tuple[int, ...] = ()
+
+
+def _valid_anchor(anchor_uv: np.ndarray | tuple[float, float] | None) -> np.ndarray | None:
+    if anchor_uv is None:
+        return None
+    a = np.asarray(anchor_uv, dtype=float).reshape(-1)
+    if a.shape != (2,) or not np.all(np.isfinite(a)):
+        return None  # e.g. a target behind the camera (NaN pixel)
+    return a
+
+
+def containing(boxes: np.ndarray, anchor_uv: np.ndarray) -> np.ndarray:
+    """Indices of the boxes that contain the anchor (edges included)."""
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    u, v = float(anchor_uv[0]), float(anchor_uv[1])
+    return np.flatnonzero((b[:, 0] <= u) & (u <= b[:, 2]) & (b[:, 1] <= v) & (v <= b[:, 3]))
+
+
+def _fallback(boxes: np.ndarray, anchor: np.ndarray, fallback: Fallback, max_px: float) -> Match:
+    if fallback == "none" or not len(boxes):
+        return Match(None, "none")
+    if fallback != "nearest":
+        raise ValueError(f"fallback must be 'none' or 'nearest' (got {fallback!r})")
+    b = np.asarray(boxes, dtype=float)
+    dx = np.maximum(np.maximum(b[:, 0] - anchor[0], anchor[0] - b[:, 2]), 0.0)
+    dy = np.maximum(np.maximum(b[:, 1] - anchor[1], anchor[1] - b[:, 3]), 0.0)
+    gap = np.hypot(dx, dy)
+    best = int(np.argmin(gap))
+    if gap[best] > max_px:
+        return Match(None, "none")
+    return Match(best, "fallback")
+
+
+def match_baseline(
+    anchor_uv: np.ndarray | tuple[float, float] | None,
+    boxes: np.ndarray,
+    fallback: Fallback = "none",
+    max_fallback_px: float = 20.0,
+) -> Match:
+    """RGB-only matching: the box containing the anchor; among several, the nearest centre.
+
+    :param anchor_uv: the anchor pixel ``(u, v)``; ``None`` or NaN (target behind the
+        camera, no twin data) gives no match
+    :param boxes: ``(N, 4)`` detected boxes
+    :param fallback: what to do when no box contains the anchor
+    :param max_fallback_px: farthest box edge the ``"nearest"`` fallback accepts [px]
+    :return: the match
+    """
+    anchor = _valid_anchor(anchor_uv)
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    if anchor is None or not len(b):
+        return Match(None, "none")
+    cand = containing(b, anchor)
+    if len(cand) == 1:
+        return Match(int(cand[0]), "single", (int(cand[0]),))
+    if len(cand) > 1:
+        centres = (b[cand, :2] + b[cand, 2:]) / 2
+        best = int(cand[np.argmin(np.hypot(*(centres - anchor).T))])
+        return Match(best, "centre", tuple(int(c) for c in cand))
+    return _fallback(b, anchor, fallback, max_fallback_px)
+
+
+def match_distance(
+    anchor_uv: np.ndarray | tuple[float, float] | None,
+    boxes: np.ndarray,
+    distances_m: np.ndarray,
+    gnss_distance_m: float,
+    fallback: Fallback = "none",
+    max_fallback_px: float = 20.0,
+) -> Match:
+    """Algorithm 2 (distance matching).
+
+    :param anchor_uv: the anchor pixel ``(u, v)`` (``None``/NaN: no match)
+    :param boxes: ``(N, 4)`` detected boxes
+    :param distances_m: ``(N,)`` each box's distance from Algorithm 1 [m] (NaN: unknown)
+    :param gnss_distance_m: the target's distance from its GNSS position ``D_g`` [m], same
+        reference as ``distances_m``; NaN falls back to the nearest-centre rule
+    :param fallback: what to do when no box contains the anchor
+    :param max_fallback_px: farthest box edge the ``"nearest"`` fallback accepts [px]
+    :return: the match
+    """
+    anchor = _valid_anchor(anchor_uv)
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    d = np.asarray(distances_m, dtype=float).reshape(-1)
+    if len(d) != len(b):
+        raise ValueError(f"one distance per box is needed (got {len(d)} distances for {len(b)} boxes)")
+    if anchor is None or not len(b):
+        return Match(None, "none")
+    cand = containing(b, anchor)
+    if len(cand) == 1:
+        return Match(int(cand[0]), "single", (int(cand[0]),))
+    if len(cand) > 1:
+        diff = np.abs(d[cand] - gnss_distance_m)  # Alg. 2 lines 10-14, with |.|
+        if not math.isfinite(gnss_distance_m) or not np.isfinite(diff).any():
+            centre = match_baseline(anchor, b[cand])
+            return Match(int(cand[centre.index]), "centre", tuple(int(c) for c in cand))
+        best = int(cand[np.nanargmin(diff)])
+        return Match(best, "depth", tuple(int(c) for c in cand))
+    return _fallback(b, anchor, fallback, max_fallback_px)
+
+
+@dataclass(frozen=True)
+class JointCost:
+    """Weights of :func:`match_joint`'s cost.
+
+    :param depth_scale_m: depth residual that costs 1 [m]
+    :param outside_penalty: anchor-only rows: added when the anchor is outside the box [-]
+    :param min_fit: expected-box rows: least IoU with the expected box for a pair to be allowed [-]
+    :param gate: pairs costlier than this are never assigned [-]
+    """
+
+    depth_scale_m: float = 4.0
+    outside_penalty: float = 1.0
+    min_fit: float = 0.1
+    gate: float = 3.0
+
+
+def _fit(expected: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """How well each box fits each expected box: their IoU."""
+    ix = np.clip(np.minimum(expected[:, None, 2], boxes[None, :, 2]) - np.maximum(expected[:, None, 0], boxes[None, :, 0]), 0, None)
+    iy = np.clip(np.minimum(expected[:, None, 3], boxes[None, :, 3]) - np.maximum(expected[:, None, 1], boxes[None, :, 1]), 0, None)
+    inter = ix * iy
+    area_e = (expected[:, 2] - expected[:, 0]) * (expected[:, 3] - expected[:, 1])
+    area_b = np.maximum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), 1e-9)
+    union = np.maximum(area_e[:, None] + area_b[None, :] - inter, 1e-9)
+    return inter / union
+
+
+def match_joint(
+    anchors_uv: np.ndarray,
+    gnss_distances_m: np.ndarray,
+    boxes: np.ndarray,
+    distances_m: np.ndarray,
+    cost: JointCost = JointCost(),
+    extra_cost: np.ndarray | None = None,
+    expected_boxes: np.ndarray | None = None,
+    anchor_sigma_px: np.ndarray | None = None,
+) -> list[int | None]:
+    """Assign every connected vehicle in view to at most one box, and each box to at most one vehicle.
+
+    Geometric cost of vehicle ``i`` and box ``j``: the anchor's offset from the box centre,
+    per axis in units of (half the box's size + twice the anchor's uncertainty
+    ``anchor_sigma_px``), so 1 is "at the edge, give or take the GNSS error", plus
+    ``outside_penalty`` beyond that; plus the depth residual ``|d_j - D_g,i| / depth_scale_m``
+    (NaN counts as 0). For a vehicle given an expected box instead (its 3-D outline projected,
+    used when its anchor is off the image, e.g. beside the ego): ``2 (1 - IoU)`` with the
+    expected box, and no depth term (the near face of a car beside the ego is its side). Boxes that no connected vehicle
+    explains stay unassigned, so an unconnected car cannot take a twin's label, and one twin
+    vehicle cannot take another's box.
+
+    :param anchors_uv: ``(K, 2)`` anchors of the connected vehicles (NaN rows: not in view)
+    :param gnss_distances_m: ``(K,)`` their GNSS distances [m]
+    :param boxes: ``(N, 4)`` detected boxes
+    :param distances_m: ``(N,)`` the boxes' distances from Algorithm 1 [m]
+    :param cost: the cost's weights
+    :param extra_cost: optional ``(K, N)`` term added to the cost (e.g. a bonus for keeping
+        last frame's box); it does not move the gate
+    :param expected_boxes: optional ``(K, 4)`` expected boxes (NaN rows: use the anchor)
+    :param anchor_sigma_px: optional ``(K,)`` uncertainty of each anchor [px] (default 0)
+    :return: for each vehicle, the index of its box or ``None``
+    """
+    a = np.asarray(anchors_uv, dtype=float).reshape(-1, 2)
+    g = np.asarray(gnss_distances_m, dtype=float).reshape(-1)
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    d = np.asarray(distances_m, dtype=float).reshape(-1)
+    out: list[int | None] = [None] * len(a)
+    if not len(a) or not len(b):
+        return out
+    centre = (b[:, :2] + b[:, 2:]) / 2
+    half = np.maximum(b[:, 2:] - b[:, :2], 1.0) / 2
+    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.nan_to_num(np.asarray(anchor_sigma_px, dtype=float))
+    scale = half[None] + 2.0 * sigma[:, None, None]  # (K, N, 2)
+    offset = (a[:, None, :] - centre[None]) / scale  # 1 = at the edge, give or take the error
+    inside = (np.abs(offset) <= 1.0).all(axis=2)
+    geo = np.hypot(offset[..., 0], offset[..., 1]) + np.where(inside, 0.0, cost.outside_penalty)
+    allowed = np.ones(geo.shape, dtype=bool)
+    depth_term = np.nan_to_num(np.abs(d[None, :] - g[:, None]) / cost.depth_scale_m, nan=0.0)
+    if expected_boxes is not None:
+        e = np.asarray(expected_boxes, dtype=float).reshape(-1, 4)
+        has = np.isfinite(e).all(axis=1)
+        if has.any():
+            fit = _fit(np.where(has[:, None], e, 0.0), b)
+            geo = np.where(has[:, None], 2.0 * (1.0 - fit), geo)
+            depth_term = np.where(has[:, None], 0.0, depth_term)
+            allowed &= ~has[:, None] | (fit >= cost.min_fit)
+    total = geo + depth_term
+    total = np.where(np.isfinite(total), total, np.inf)
+    allowed &= total <= cost.gate
+    if extra_cost is not None:
+        total = total + np.asarray(extra_cost, dtype=float).reshape(total.shape)
+    big = 1e6
+    rows, cols = linear_sum_assignment(np.where(allowed, total, big))
+    for r, c in zip(rows, cols):
+        if allowed[r, c]:
+            out[int(r)] = int(c)
+    return out
