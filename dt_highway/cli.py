@@ -197,6 +197,19 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_fusion(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_fusion
+
+    result = bench_fusion(args.frames, args.boxes)
+    if args.json:
+        print(dump_json(result))
+    else:
+        for m, r in result["methods"].items():
+            print(f"{m:9s} median {r['median_ms']:.3f} ms  p90 {r['p90_ms']:.3f} ms per frame ({args.boxes} boxes)")
+        print(f"target <= {result['target_ms']} ms: met by {', '.join(result['target_met_by']) or 'none'}")
+    return 0
+
+
 def cmd_bench_memory(args: argparse.Namespace) -> int:
     from dt_highway.bench import bench_memory
 
@@ -277,6 +290,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench_camera)
+    p = bsub.add_parser("fusion", help="time of one frame's fusion (Alg. 1 + 2 + tracking) per method, one core")
+    p.add_argument("--frames", type=_positive(int, "--frames"), default=300, help="frames per method (default 300)")
+    p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20, help="boxes and twin vehicles per frame (default 20)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench_fusion)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

@@ -124,3 +124,25 @@ def test_principal_point_moves_the_image(cfg):
         frames.append(env.camera_frame().rgb)
         env.close()
     assert frames[0].tobytes() != frames[1].tobytes()
+
+
+def test_adas_overlay_items_come_from_the_twin_and_the_fusion(cfg):
+    env = DTHighwayEnv(config=cfg(fusion={"enabled": True}, ego={"autopilot": True},
+                                  highway={"vehicles_count": 30}, traffic={"aggressive_fraction": 0.5}))
+    _, info = env.reset(seed=3)
+    shown = 0
+    for _ in range(6):
+        _, _, _, _, info = env.step(1)
+        adas = info["adas"]
+        aggressive = {v["vehicle_id"] for v in info["twin"] or [] if v["tag"] == "aggressive"}
+        for item in adas["overlay"]:
+            assert item["vehicle_id"] in aggressive  # only what the twin tags, never ground truth
+            assert item["label"] == "aggressive driver" and 0.0 <= item["confidence"] <= 1.0
+            x1, y1, x2, y2 = item["box"]
+            assert x2 > x1 and y2 > y1
+            shown += 1
+        assert set(adas["placements"]) <= {v["vehicle_id"] for v in info["twin"] or []}
+    assert adas["method"] == "tracked"
+    env.close()
+    with pytest.raises(ConfigError, match="fusion.enabled = true needs camera.enabled"):
+        DTHighwayEnv(config={"fusion": {"enabled": True}})

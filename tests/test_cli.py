@@ -119,3 +119,25 @@ def test_bench_camera_prints_numbers(capsys):
     assert result["median_ms"]["ours_320x180"] > 0 and result["median_ms"]["highway_env_topdown_640x360"] > 0
     assert result["ratio_ours_640x360_to_highway_env"] > 0
     assert os.sched_getaffinity(0) == affinity  # the benchmark gives the cores back
+
+
+def test_matching_writes_curve_and_summary(tmp_path, capsys):
+    out = tmp_path / "match"
+    args = ["matching", "--out", str(out), "--frames", "4", "--quiet", *TINY, "--set", "highway.duration=40",
+            "--set", "camera.width_px=320", "--set", "camera.height_px=180"]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_frames"] == 4
+    assert set(summary["methods"]) == {"baseline", "fusion", "joint", "tracked"}
+    for m in summary["methods"].values():
+        assert 0.0 <= m["acc_iou70"] <= 1.0
+    header = (out / "curve.csv").read_text().splitlines()[0]
+    assert header == "method,subset,iou_threshold,accuracy"
+    assert (out / "curve.png").stat().st_size > 1000
+
+
+def test_bench_fusion_prints_numbers(capsys):
+    assert main(["bench", "fusion", "--frames", "5", "--boxes", "5", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result["methods"]) == {"baseline", "fusion", "joint", "tracked"}
+    assert all(r["median_ms"] > 0 for r in result["methods"].values())

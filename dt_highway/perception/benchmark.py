@@ -136,7 +136,11 @@ def run_matching(
     result = MatchingResult(methods=tuple(methods), settings=_settings(cfg, seed, settings))
     episode, step = 0, 0
     anchor_h = cfg.fusion.anchor_height_m
+    max_steps = 200 * frames + 1000
     while len(result.rows) < frames:
+        if step >= max_steps:
+            raise RuntimeError(f"no targets in {step} steps: the scenario shows too few connected vehicles "
+                               f"({len(result.rows)} frames found, {frames} asked)")
         _, _, terminated, truncated, _ = env.step(0)
         step += 1
         if terminated or truncated:

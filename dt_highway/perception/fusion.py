@@ -179,7 +179,7 @@ class Fusion:
         straddle = (p[..., 2] > near) != (q[..., 2] > near)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (near - p[..., 2]) / (q[..., 2] - p[..., 2])
-        cut = p + t[..., None] * (q - p)
+            cut = p + t[..., None] * (q - p)
         cand = np.concatenate([pc, cut], axis=1)  # (K, 20, 3)
         ok = np.concatenate([pc[..., 2] > near, straddle], axis=1)
         z = np.where(ok, cand[..., 2], 1.0)
