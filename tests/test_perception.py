@@ -141,11 +141,15 @@ def test_tracks_keep_their_identity_through_a_missed_detection():
     ids = []
     for k in range(8):
         box = np.array([[100.0 + 3 * k, 100.0, 140.0 + 3 * k, 130.0]])
-        tracks = tracker.update(box if k != 4 else np.zeros((0, 4)))  # frame 4: missed
-        ids.append({t.track_id for t in tracks})
+        tracker.update(box if k != 4 else np.zeros((0, 4)))  # frame 4: missed
+        ids.append({t.track_id for t in tracker.tracks})
+        if k == 4:  # coasting on its prediction, which moved on with the box
+            coast_ids, coast_boxes = tracker.coasting()
+            assert coast_ids.tolist() == [1]
+            np.testing.assert_allclose(coast_boxes[0], [112.0, 100.0, 152.0, 130.0], atol=1.5)
     assert all(i == {1} for i in ids)
-    coasting = tracker.tracks[0]
-    assert coasting.misses == 0 and coasting.hits == 7
+    track = tracker.tracks[0]
+    assert track.misses == 0 and track.hits == 7
 
 
 def test_a_merged_detection_does_not_capture_two_tracks():
@@ -156,7 +160,7 @@ def test_a_merged_detection_does_not_capture_two_tracks():
         tracker.update(np.array([a, b]))
     tracker.update(np.array([[100.0, 100.0, 176.0, 130.0]]))  # one box over both
     assert tracker.detection_tracks == [None]
-    assert {t.track_id for t in tracker.coasting()} == {1, 2}
+    assert set(tracker.coasting()[0].tolist()) == {1, 2}
 
 
 # ----------------------------------------------------------------------------- simulated detector
@@ -240,3 +244,27 @@ def test_fusion_places_a_vehicle_on_its_box(method):
 def test_bad_method_is_refused():
     with pytest.raises(ValueError, match="method must be one of"):
         FusionSettings(method="magic")
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_batch_matching_equals_one_target_at_a_time(seed):
+    from dt_highway.perception import match_each
+
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 300, (12, 2))
+    boxes = np.concatenate([xy, xy + rng.uniform(10, 80, (12, 2))], axis=1)
+    dist = rng.uniform(5, 80, 12)
+    dist[3] = np.nan
+    anchors = rng.uniform(0, 350, (30, 2))
+    anchors[4] = np.nan
+    gnss = rng.uniform(5, 80, 30)
+    gnss[5] = np.nan
+    for fallback in ("none", "nearest"):
+        idx, rules = match_each(anchors, boxes, fallback=fallback)
+        for k in range(30):
+            m = match_baseline(anchors[k], boxes, fallback)
+            assert (m.index if m.index is not None else -1, m.rule) == (idx[k], rules[k])
+        idx, rules = match_each(anchors, boxes, dist, gnss, fallback=fallback)
+        for k in range(30):
+            m = match_distance(anchors[k], boxes, dist, gnss[k], fallback)
+            assert (m.index if m.index is not None else -1, m.rule) == (idx[k], rules[k])

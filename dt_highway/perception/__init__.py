@@ -5,7 +5,7 @@ from __future__ import annotations
 from dt_highway.perception.depth import box_distances, sample_regions
 from dt_highway.perception.detect import Detections, Detector, SimulatedDetector, SimulatedDetectorSettings, iou
 from dt_highway.perception.fusion import METHODS, Fusion, FusionSettings, Placement
-from dt_highway.perception.matching import JointCost, Match, match_baseline, match_distance, match_joint
+from dt_highway.perception.matching import JointCost, Match, match_baseline, match_distance, match_each, match_joint
 from dt_highway.perception.tracking import BoxTracker
 
 
@@ -53,6 +53,7 @@ __all__ = [
     "iou",
     "match_baseline",
     "match_distance",
+    "match_each",
     "match_joint",
     "sample_regions",
 ]

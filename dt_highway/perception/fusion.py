@@ -32,7 +32,7 @@ from dt_highway.camera.pinhole import PinholeCamera
 from dt_highway.camera.render import CameraFrame
 from dt_highway.perception.depth import box_distances
 from dt_highway.perception.detect import Detections
-from dt_highway.perception.matching import JointCost, match_baseline, match_distance, match_joint
+from dt_highway.perception.matching import JointCost, match_each, match_joint
 from dt_highway.perception.tracking import BoxTracker
 from dt_highway.twin.cloud import TwinVehicleView
 
@@ -210,16 +210,19 @@ class Fusion:
             # candidates: every detection (with the track it fed) and the predicted boxes of
             # established tracks that got no detection (missed, merged or hidden)
             self.tracker.update(boxes)
-            coasting = self.tracker.coasting()
-            track_ids = list(self.tracker.detection_tracks) + [t.track_id for t in coasting]
-            is_coasting = np.array([False] * len(boxes) + [True] * len(coasting))
-            boxes = np.concatenate([boxes, np.array([t.box for t in coasting]).reshape(-1, 4)])
+            coast_ids, coast_boxes = self.tracker.coasting()
+            track_ids = list(self.tracker.detection_tracks) + coast_ids.tolist()
+            is_coasting = np.concatenate([np.zeros(len(boxes), dtype=bool), np.ones(len(coast_ids), dtype=bool)])
+            boxes = np.concatenate([boxes, coast_boxes])
         joint = s.method in ("joint", "tracked")
         anchors, gnss = self.anchors(frame, twin, now_s, compensate=joint)
         if not twin:
             return {}
-        dist = box_distances(frame.depth_m, boxes, s.th, s.n_samples, self.rng,
-                             reducer="median" if joint else "mean")
+        if s.method == "baseline":
+            dist = np.full(len(boxes), np.nan)  # RGB only: no depth
+        else:
+            dist = box_distances(frame.depth_m, boxes, s.th, s.n_samples, self.rng,
+                                 reducer="median" if joint else "mean")
         out: dict[int, Placement] = {}
 
         def place(k: int, idx: int | None, rule: str) -> None:
@@ -230,12 +233,12 @@ class Fusion:
                                           rule if idx is not None else "none")
 
         if not joint:
-            for k in range(len(twin)):
-                if s.method == "baseline":
-                    m = match_baseline(anchors[k], boxes, s.fallback)
-                else:
-                    m = match_distance(anchors[k], boxes, dist, float(gnss[k]), s.fallback)
-                place(k, m.index, m.rule)
+            if s.method == "baseline":
+                chosen_idx, rules = match_each(anchors, boxes, fallback=s.fallback)
+            else:
+                chosen_idx, rules = match_each(anchors, boxes, dist, gnss, fallback=s.fallback)
+            for k, (j, rule) in enumerate(zip(chosen_idx.tolist(), rules)):
+                place(k, j if j >= 0 else None, rule)
             return out
         extra = None
         if s.method == "tracked" and len(boxes):
@@ -251,7 +254,9 @@ class Fusion:
         k_int = self.camera.intrinsics
         off = ~(np.isfinite(anchors).all(axis=1) & (anchors[:, 0] >= -0.5) & (anchors[:, 0] <= k_int.width_px - 0.5)
                 & (anchors[:, 1] >= -0.5) & (anchors[:, 1] <= k_int.height_px - 0.5))
-        expected = np.where(off[:, None], self.expected_boxes(frame, twin, now_s), np.nan)
+        expected = None
+        if off.any():
+            expected = np.where(off[:, None], self.expected_boxes(frame, twin, now_s), np.nan)
         sigma_px = k_int.fx_px * s.position_sigma_m / np.maximum(gnss, 1.0)
         chosen = match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
                              expected_boxes=expected, anchor_sigma_px=sigma_px)

@@ -149,6 +149,66 @@ def match_distance(
     return _fallback(b, anchor, fallback, max_fallback_px)
 
 
+def match_each(
+    anchors_uv: np.ndarray,
+    boxes: np.ndarray,
+    distances_m: np.ndarray | None = None,
+    gnss_distances_m: np.ndarray | None = None,
+    fallback: Fallback = "none",
+    max_fallback_px: float = 20.0,
+) -> tuple[np.ndarray, list[str]]:
+    """:func:`match_baseline` (without distances) or :func:`match_distance` (with them) for
+    many targets at once, each on its own (the same results, as arrays).
+
+    :param anchors_uv: ``(K, 2)`` anchors (NaN rows: no match)
+    :param boxes: ``(N, 4)`` detected boxes
+    :param distances_m: ``(N,)`` Algorithm 1 distances, or ``None`` for the baseline
+    :param gnss_distances_m: ``(K,)`` GNSS distances (with ``distances_m``)
+    :param fallback: what to do when no box contains an anchor
+    :param max_fallback_px: farthest box edge the ``"nearest"`` fallback accepts [px]
+    :return: box index per target (-1: none) and the rule per target
+    """
+    a = np.asarray(anchors_uv, dtype=float).reshape(-1, 2)
+    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
+    k_n = len(a)
+    idx = np.full(k_n, -1, dtype=np.int64)
+    rules = ["none"] * k_n
+    if not k_n or not len(b):
+        return idx, rules
+    if fallback not in ("none", "nearest"):
+        raise ValueError(f"fallback must be 'none' or 'nearest' (got {fallback!r})")
+    valid = np.isfinite(a).all(axis=1)
+    u, v = a[:, 0:1], a[:, 1:2]
+    inside = (b[None, :, 0] <= u) & (u <= b[None, :, 2]) & (b[None, :, 1] <= v) & (v <= b[None, :, 3]) & valid[:, None]
+    count = inside.sum(axis=1)
+    centre = (b[:, :2] + b[:, 2:]) / 2
+    centre_key = np.hypot(centre[None, :, 0] - u, centre[None, :, 1] - v)
+    key = centre_key
+    by_depth = np.zeros(k_n, dtype=bool)
+    if distances_m is not None:
+        d = np.asarray(distances_m, dtype=float).reshape(-1)
+        if len(d) != len(b):
+            raise ValueError(f"one distance per box is needed (got {len(d)} distances for {len(b)} boxes)")
+        g = np.asarray(gnss_distances_m, dtype=float).reshape(-1)
+        diff = np.abs(d[None, :] - g[:, None])  # Alg. 2 lines 10-14, with |.|
+        by_depth = np.isfinite(np.where(inside, diff, np.nan)).any(axis=1)
+        key = np.where(by_depth[:, None], np.where(np.isfinite(diff), diff, np.inf), centre_key)
+    chosen = np.argmin(np.where(inside, key, np.inf), axis=1)
+    for i in np.flatnonzero(count == 1):
+        idx[i], rules[i] = chosen[i], "single"
+    for i in np.flatnonzero(count > 1):
+        idx[i], rules[i] = chosen[i], "depth" if by_depth[i] else "centre"
+    if fallback == "nearest":
+        dx = np.maximum(np.maximum(b[None, :, 0] - u, u - b[None, :, 2]), 0.0)
+        dy = np.maximum(np.maximum(b[None, :, 1] - v, v - b[None, :, 3]), 0.0)
+        gap = np.hypot(dx, dy)
+        best = np.argmin(gap, axis=1)
+        for i in np.flatnonzero((count == 0) & valid):
+            if gap[i, best[i]] <= max_fallback_px:
+                idx[i], rules[i] = best[i], "fallback"
+    return idx, rules
+
+
 @dataclass(frozen=True)
 class JointCost:
     """Weights of :func:`match_joint`'s cost.

@@ -8,30 +8,18 @@ merged box), or when the twin's position is stale.
 
 State per track (Bewley et al., 2016, "Simple Online and Realtime Tracking"): box centre
 ``(u, v)`` [px], area ``s`` [px^2] and aspect ratio ``r`` [-], and the velocities of
-``u, v, s``; constant-velocity motion, one step per frame.
+``u, v, s``; constant-velocity motion, one step per frame. All tracks are filtered at once
+(arrays of states and covariances), so a frame costs a few array operations.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from dt_highway.perception.detect import iou
-
-
-def _to_z(box: np.ndarray) -> np.ndarray:
-    w, h = box[2] - box[0], box[3] - box[1]
-    return np.array([box[0] + w / 2, box[1] + h / 2, w * h, w / max(h, 1e-6)])
-
-
-def _to_box(x: np.ndarray) -> np.ndarray:
-    s, r = max(float(x[2]), 1e-6), max(float(x[3]), 1e-6)
-    w = np.sqrt(s * r)
-    h = s / max(w, 1e-6)
-    return np.array([x[0] - w / 2, x[1] - h / 2, x[0] + w / 2, x[1] + h / 2])
-
 
 _F = np.eye(7)
 _F[0, 4] = _F[1, 5] = _F[2, 6] = 1.0
@@ -41,56 +29,35 @@ _Q = np.diag([1.0, 1.0, 1.0, 1e-2, 1e-2, 1e-2, 1e-4])
 _P0 = np.diag([10.0, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4])
 
 
-@dataclass
+def _to_z(boxes: np.ndarray) -> np.ndarray:
+    """Boxes ``(N, 4)`` to measurements ``(N, 4)``: centre, area, aspect ratio."""
+    w, h = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
+    return np.stack([boxes[:, 0] + w / 2, boxes[:, 1] + h / 2, w * h, w / np.maximum(h, 1e-6)], axis=1)
+
+
+def _to_boxes(x: np.ndarray) -> np.ndarray:
+    """States ``(N, 7)`` to boxes ``(N, 4)``."""
+    s, r = np.maximum(x[:, 2], 1e-6), np.maximum(x[:, 3], 1e-6)
+    w = np.sqrt(s * r)
+    h = s / np.maximum(w, 1e-6)
+    return np.stack([x[:, 0] - w / 2, x[:, 1] - h / 2, x[:, 0] + w / 2, x[:, 1] + h / 2], axis=1)
+
+
+@dataclass(frozen=True)
 class Track:
-    """One tracked box.
+    """A snapshot of one track.
 
     :param track_id: identity, stable while the track lives
-    :param x: Kalman state ``(u, v, s, r, du, dv, ds)``
-    :param p: its covariance
+    :param box: its box this frame ``x1, y1, x2, y2`` [px]: the detection when it had one,
+        else the filter's prediction (a coasting track)
     :param hits: frames with a detection
     :param misses: frames since the last detection
-    :param age: frames since birth
     """
 
     track_id: int
-    x: np.ndarray
-    p: np.ndarray = field(default_factory=lambda: _P0.copy())
-    hits: int = 1
-    misses: int = 0
-    age: int = 0
-    detected: np.ndarray | None = None
-
-    @property
-    def box(self) -> np.ndarray:
-        """Current box ``x1, y1, x2, y2`` [px]: this frame's detection when there is one,
-        else the filter's prediction (a coasting track)."""
-        return self.detected if self.detected is not None else _to_box(self.x)
-
-    @property
-    def predicted_box(self) -> np.ndarray:
-        """The filter's box ``x1, y1, x2, y2`` [px]."""
-        return _to_box(self.x)
-
-    def predict(self) -> None:
-        if self.x[2] + self.x[6] <= 0:
-            self.x[6] = 0.0
-        self.x = _F @ self.x
-        self.p = _F @ self.p @ _F.T + _Q
-        self.age += 1
-        self.misses += 1
-        self.detected = None
-
-    def update(self, box: np.ndarray) -> None:
-        z = _to_z(box)
-        y = z - _H @ self.x
-        s = _H @ self.p @ _H.T + _R
-        k = self.p @ _H.T @ np.linalg.inv(s)
-        self.x = self.x + k @ y
-        self.p = (np.eye(7) - k @ _H) @ self.p
-        self.hits += 1
-        self.misses = 0
-        self.detected = np.asarray(box, dtype=float).copy()
+    box: np.ndarray
+    hits: int
+    misses: int
 
 
 class BoxTracker:
@@ -110,29 +77,48 @@ class BoxTracker:
         self.max_misses = max_misses
         self.merge_cover = merge_cover
         self.merge_iou = merge_iou
-        self.tracks: list[Track] = []
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track."""
+        self._x = np.zeros((0, 7))
+        self._p = np.zeros((0, 7, 7))
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._hits = np.zeros(0, dtype=np.int64)
+        self._misses = np.zeros(0, dtype=np.int64)
+        self._detected = np.zeros((0, 4))
         self._next_id = 1
         self.detection_tracks: list[int | None] = []
         """Track id of each detection of the last update (``None`` for a merged box)"""
 
-    def reset(self) -> None:
-        """Forget every track."""
-        self.tracks = []
-        self._next_id = 1
+    @property
+    def tracks(self) -> list[Track]:
+        """The live tracks."""
+        boxes = self._boxes()
+        return [Track(int(i), boxes[k], int(h), int(m))
+                for k, (i, h, m) in enumerate(zip(self._ids, self._hits, self._misses))]
 
-    def update(self, boxes: np.ndarray) -> list[Track]:
+    def _boxes(self) -> np.ndarray:
+        return np.where((self._misses == 0)[:, None], self._detected, _to_boxes(self._x))
+
+    def update(self, boxes: np.ndarray) -> None:
         """Advance one frame with this frame's detections.
 
         :param boxes: ``(N, 4)`` detected boxes
-        :return: the live tracks (updated, new, or coasting on their prediction)
         """
         b = np.asarray(boxes, dtype=float).reshape(-1, 4)
-        for t in self.tracks:
-            t.predict()
+        # predict every track
+        shrink = self._x[:, 2] + self._x[:, 6] <= 0
+        self._x[shrink, 6] = 0.0
+        self._x = self._x @ _F.T
+        self._p = _F @ self._p @ _F.T + _Q
+        self._misses += 1
+        n_t = len(self._ids)
         merged = np.zeros(len(b), dtype=bool)
-        if self.tracks and len(b):
-            pred = np.array([t.predicted_box for t in self.tracks])
-            established = np.array([t.hits >= 2 for t in self.tracks])
+        det_track = np.full(len(b), -1, dtype=np.int64)  # index of the track each detection feeds
+        if n_t and len(b):
+            pred = _to_boxes(self._x)
+            established = self._hits >= 2
             ix = np.clip(np.minimum(b[:, None, 2], pred[None, :, 2]) - np.maximum(b[:, None, 0], pred[None, :, 0]), 0, None)
             iy = np.clip(np.minimum(b[:, None, 3], pred[None, :, 3]) - np.maximum(b[:, None, 1], pred[None, :, 1]), 0, None)
             area = np.maximum((pred[:, 2] - pred[:, 0]) * (pred[:, 3] - pred[:, 1]), 1e-6)
@@ -143,46 +129,63 @@ class BoxTracker:
             merged = (covers.sum(axis=1) >= 2) & ((overlap * covers).max(axis=1) < self.merge_iou)
             overlap[merged] = 0.0
             rows, cols = linear_sum_assignment(-overlap)
-            used_d: dict[int, int] = {}
-            used_t: set[int] = set()
-            for r, c in zip(rows, cols):
-                if overlap[r, c] >= self.iou_gate:
-                    self.tracks[c].update(b[r])
-                    used_d[int(r)] = self.tracks[c].track_id
-                    used_t.add(int(c))
+            ok = overlap[rows, cols] >= self.iou_gate
+            det_track[rows[ok]] = cols[ok]
             # second pass for what is left: a detection whose centre lies near a track's
             # predicted centre (within half the predicted box) continues it, even if the
             # box changed size too much for the IoU gate (small, jittery boxes)
-            free_d = [i for i in range(len(b)) if i not in used_d and not merged[i]]
-            free_t = [j for j in range(len(self.tracks)) if j not in used_t]
-            if free_d and free_t:
+            free_d = np.flatnonzero((det_track < 0) & ~merged)
+            free_t = np.setdiff1d(np.arange(n_t), det_track[det_track >= 0])
+            if len(free_d) and len(free_t):
                 cd = (b[free_d, :2] + b[free_d, 2:]) / 2
                 ct = (pred[free_t, :2] + pred[free_t, 2:]) / 2
                 half = np.maximum((pred[free_t, 2:] - pred[free_t, :2]) / 2, 1.0)
-                dist = np.abs(cd[:, None, :] - ct[None]) / half[None]  # in half-sizes of the track
+                dist = np.abs(cd[:, None, :] - ct[None]) / half[None]
                 score = np.where((dist <= 1.0).all(axis=2), np.hypot(dist[..., 0], dist[..., 1]), np.inf)
                 if np.isfinite(score).any():
                     rr, cc = linear_sum_assignment(np.where(np.isfinite(score), score, 1e6))
-                    for r, c in zip(rr, cc):
-                        if np.isfinite(score[r, c]):
-                            track = self.tracks[free_t[c]]
-                            track.update(b[free_d[r]])
-                            used_d[free_d[r]] = track.track_id
-        else:
-            used_d = {}
-        self.detection_tracks = []
-        for i in range(len(b)):
-            if i in used_d:
-                self.detection_tracks.append(used_d[i])
-            elif merged[i]:
-                self.detection_tracks.append(None)
-            else:
-                self.tracks.append(Track(self._next_id, np.concatenate([_to_z(b[i]), np.zeros(3)]), detected=b[i].copy()))
-                self.detection_tracks.append(self._next_id)
-                self._next_id += 1
-        self.tracks = [t for t in self.tracks if t.misses <= self.max_misses]
-        return list(self.tracks)
+                    good = np.isfinite(score[rr, cc])
+                    det_track[free_d[rr[good]]] = free_t[cc[good]]
+        # Kalman update of the tracks that got a detection, all at once
+        fed = np.flatnonzero(det_track >= 0)
+        if len(fed):
+            ti = det_track[fed]
+            z = _to_z(b[fed])
+            p = self._p[ti]
+            s = p[:, :4, :4] + _R  # H P H^T + R with H = [I 0]
+            k = np.linalg.solve(s, p[:, :4, :]).transpose(0, 2, 1)  # P H^T S^-1, (m, 7, 4)
+            y = z - self._x[ti, :4]
+            self._x[ti] = self._x[ti] + np.einsum("mij,mj->mi", k, y)
+            self._p[ti] = p - k @ p[:, :4, :]
+            self._hits[ti] += 1
+            self._misses[ti] = 0
+            self._detected[ti] = b[fed]
+        # new tracks for the detections nobody claimed (merged boxes start none)
+        new = np.flatnonzero((det_track < 0) & ~merged)
+        if len(new):
+            z = _to_z(b[new])
+            self._x = np.concatenate([self._x, np.concatenate([z, np.zeros((len(new), 3))], axis=1)])
+            self._p = np.concatenate([self._p, np.broadcast_to(_P0, (len(new), 7, 7))])
+            new_ids = np.arange(self._next_id, self._next_id + len(new))
+            self._next_id += len(new)
+            self._ids = np.concatenate([self._ids, new_ids])
+            self._hits = np.concatenate([self._hits, np.ones(len(new), dtype=np.int64)])
+            self._misses = np.concatenate([self._misses, np.zeros(len(new), dtype=np.int64)])
+            self._detected = np.concatenate([self._detected, b[new]])
+        row_of = det_track.copy()
+        row_of[new] = n_t + np.arange(len(new))
+        ids = self._ids[np.maximum(row_of, 0)].tolist()
+        self.detection_tracks = [None if row_of[i] < 0 else ids[i] for i in range(len(b))]
+        # drop the tracks lost for too long
+        alive = self._misses <= self.max_misses
+        if not alive.all():
+            self._x, self._p, self._ids = self._x[alive], self._p[alive], self._ids[alive]
+            self._hits, self._misses, self._detected = self._hits[alive], self._misses[alive], self._detected[alive]
 
-    def coasting(self, min_hits: int = 3) -> list[Track]:
-        """Tracks without a detection this frame that had at least ``min_hits`` before."""
-        return [t for t in self.tracks if t.misses > 0 and t.hits >= min_hits]
+    def coasting(self, min_hits: int = 3) -> tuple[np.ndarray, np.ndarray]:
+        """Tracks without a detection this frame that had at least ``min_hits`` before.
+
+        :return: their ids ``(M,)`` and predicted boxes ``(M, 4)``
+        """
+        sel = (self._misses > 0) & (self._hits >= min_hits)
+        return self._ids[sel], _to_boxes(self._x[sel])
