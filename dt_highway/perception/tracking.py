@@ -135,7 +135,9 @@ class BoxTracker:
             # predicted centre (within half the predicted box) continues it, even if the
             # box changed size too much for the IoU gate (small, jittery boxes)
             free_d = np.flatnonzero((det_track < 0) & ~merged)
-            free_t = np.setdiff1d(np.arange(n_t), det_track[det_track >= 0])
+            taken = np.zeros(n_t, dtype=bool)
+            taken[det_track[det_track >= 0]] = True
+            free_t = np.flatnonzero(~taken)
             if len(free_d) and len(free_t):
                 cd = (b[free_d, :2] + b[free_d, 2:]) / 2
                 ct = (pred[free_t, :2] + pred[free_t, 2:]) / 2
