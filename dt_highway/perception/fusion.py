@@ -149,10 +149,16 @@ class Fusion:
             age = np.where(np.isfinite(age), age, 0.0)
             x = x + pts[:, 2] * np.cos(pts[:, 3]) * age
             y = y + pts[:, 2] * np.sin(pts[:, 3]) * age
-        world = np.stack([x, y, np.full(len(x), self.settings.anchor_height_m)], axis=1)
-        proj = self.camera.project(world, frame.pose)
-        depth = np.where(proj.in_front, proj.depth_m, np.nan)
-        return proj.uv_px, depth
+        # the pinhole model (paper Eq. 1-3) written out for speed; same as camera.project
+        rot, t = self.camera.extrinsics(frame.pose)
+        pc = np.stack([x, y, np.full(len(x), -self.settings.anchor_height_m)], axis=1) @ rot.T + t  # z down
+        k = self.camera.intrinsics
+        z = pc[:, 2]
+        front = z > self.camera.near_m
+        zs = np.where(front, z, 1.0)
+        uv = np.stack([k.fx_px * pc[:, 0] / zs + k.cx_px, k.fy_px * pc[:, 1] / zs + k.cy_px], axis=1)
+        uv[~front] = np.nan
+        return uv, np.where(front, z, np.nan)
 
     def expected_boxes(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
         """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
@@ -225,12 +231,15 @@ class Fusion:
                                  reducer="median" if joint else "mean")
         out: dict[int, Placement] = {}
 
+        box_list, dist_list = boxes.tolist(), dist.tolist()
+        gnss_list, anchor_list = gnss.tolist(), anchors.tolist()
+
         def place(k: int, idx: int | None, rule: str) -> None:
-            v = twin[k]
-            box = None if idx is None else tuple(float(c) for c in boxes[idx])
-            out[v.vehicle_id] = Placement(v.vehicle_id, box, float(dist[idx]) if idx is not None else math.nan,
-                                          float(gnss[k]), (float(anchors[k, 0]), float(anchors[k, 1])),
-                                          rule if idx is not None else "none")
+            vid = twin[k].vehicle_id
+            if idx is None:
+                out[vid] = Placement(vid, None, math.nan, gnss_list[k], tuple(anchor_list[k]), "none")
+            else:
+                out[vid] = Placement(vid, tuple(box_list[idx]), dist_list[idx], gnss_list[k], tuple(anchor_list[k]), rule)
 
         if not joint:
             if s.method == "baseline":
