@@ -43,8 +43,9 @@ def sample_regions(boxes: np.ndarray, th: float, shape: tuple[int, int]) -> np.n
     y2 = cy + half_h
     y1 = y2 - half_h / 2  # the lower quarter of the shrunk box's height (2 * half_h)
     h, w = shape
-    return np.stack([np.clip(x1, -0.5, w - 0.5), np.clip(y1, -0.5, h - 0.5),
-                     np.clip(x2, -0.5, w - 0.5), np.clip(y2, -0.5, h - 0.5)], axis=1)
+    lo = np.array([-0.5, -0.5, -0.5, -0.5])
+    hi = np.array([w - 0.5, h - 0.5, w - 0.5, h - 0.5])
+    return np.minimum(np.maximum(np.stack([x1, y1, x2, y2], axis=1), lo), hi)
 
 
 def box_distances(
@@ -96,10 +97,10 @@ def box_distances(
     inside = (c0 >= 0) & (c0 < depth_m.shape[1]) & (r0 >= 0) & (r0 < depth_m.shape[0])
     u = (c0[:, None] + np.floor(rng.random((len(area), n)) * (c1 - c0 + 1)[:, None])).astype(np.intp)
     v = (r0[:, None] + np.floor(rng.random((len(area), n)) * (r1 - r0 + 1)[:, None])).astype(np.intp)
-    u = np.clip(u, 0, depth_m.shape[1] - 1)
-    v = np.clip(v, 0, depth_m.shape[0] - 1)
+    u = np.minimum(np.maximum(u, 0), depth_m.shape[1] - 1)
+    v = np.minimum(np.maximum(v, 0), depth_m.shape[0] - 1)
     samples = depth_m[v, u].astype(float)
     if reference == "range":
         samples = samples * ray_norm[v, u]
-    out = samples.mean(axis=1) if reducer == "mean" else np.median(samples, axis=1)
+    out = samples.sum(axis=1) / n if reducer == "mean" else np.median(samples, axis=1)
     return np.where(inside, out, np.nan)

@@ -278,13 +278,15 @@ def match_joint(
         return out
     centre = (b[:, :2] + b[:, 2:]) / 2
     half = np.maximum(b[:, 2:] - b[:, :2], 1.0) / 2
-    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.nan_to_num(np.asarray(anchor_sigma_px, dtype=float))
+    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.asarray(anchor_sigma_px, dtype=float)
+    sigma = np.where(np.isfinite(sigma), sigma, 0.0)
     scale = half[None] + 2.0 * sigma[:, None, None]  # (K, N, 2)
     offset = (a[:, None, :] - centre[None]) / scale  # 1 = at the edge, give or take the error
     inside = (np.abs(offset) <= 1.0).all(axis=2)
     geo = np.hypot(offset[..., 0], offset[..., 1]) + np.where(inside, 0.0, cost.outside_penalty)
     allowed = np.ones(geo.shape, dtype=bool)
-    depth_term = np.nan_to_num(np.abs(d[None, :] - g[:, None]) / cost.depth_scale_m, nan=0.0)
+    depth_term = np.abs(d[None, :] - g[:, None]) / cost.depth_scale_m
+    depth_term = np.where(np.isnan(depth_term), 0.0, depth_term)
     if expected_boxes is not None:
         e = np.asarray(expected_boxes, dtype=float).reshape(-1, 4)
         has = np.isfinite(e).all(axis=1)

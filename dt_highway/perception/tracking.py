@@ -145,8 +145,8 @@ class BoxTracker:
         if n_t and len(b):
             pred = _to_boxes(self._x)
             established = self._hits >= 2
-            ix = np.clip(np.minimum(b[:, None, 2], pred[None, :, 2]) - np.maximum(b[:, None, 0], pred[None, :, 0]), 0, None)
-            iy = np.clip(np.minimum(b[:, None, 3], pred[None, :, 3]) - np.maximum(b[:, None, 1], pred[None, :, 1]), 0, None)
+            ix = np.maximum(np.minimum(b[:, None, 2], pred[None, :, 2]) - np.maximum(b[:, None, 0], pred[None, :, 0]), 0.0)
+            iy = np.maximum(np.minimum(b[:, None, 3], pred[None, :, 3]) - np.maximum(b[:, None, 1], pred[None, :, 1]), 0.0)
             area = np.maximum((pred[:, 2] - pred[:, 0]) * (pred[:, 3] - pred[:, 1]), 1e-6)
             cover = ix * iy / area[None, :]  # share of each track's box inside each detection
             overlap = iou(b, pred)
