@@ -202,8 +202,11 @@ class UplinkConfig(LinkConfig):
 
 
 class DownlinkConfig(LinkConfig):
-    """Cloud -> ego twin views."""
+    """Cloud -> ego twin views (its own defaults: 50 ms, 10 ms jitter, no loss)."""
 
+    latency_mean_s: float = Field(0.05, ge=0, le=10, description="mean latency [s]")
+    latency_jitter_s: float = Field(0.01, ge=0, le=10, description="latency standard deviation [s]")
+    loss_prob: float = Field(0.0, ge=0, lt=1, description="probability that a message is lost [-]")
     radius_m: float = Field(200.0, gt=0, description="vehicles within this distance of the ego are sent [m]")
 
 
@@ -259,9 +262,7 @@ class TwinConfig(_Section):
         False, description="add each observed vehicle's delivered twin tag to the Kinematics observation"
     )
     uplink: UplinkConfig = Field(default_factory=UplinkConfig)
-    downlink: DownlinkConfig = Field(
-        default_factory=lambda: DownlinkConfig(rate_hz=10.0, latency_mean_s=0.05, latency_jitter_s=0.01, loss_prob=0.0)
-    )
+    downlink: DownlinkConfig = Field(default_factory=DownlinkConfig)
     store: StoreConfig = Field(default_factory=StoreConfig)
     tagger: TaggerConfig = Field(default_factory=TaggerConfig)
 

@@ -115,3 +115,19 @@ def test_cli_bad_input_is_one_line_without_traceback():
     assert len(lines) == 1, proc.stderr
     assert "twin.uplink.rate_hz" in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+def test_default_scenario_file_is_the_defaults():
+    from pathlib import Path
+
+    from dt_highway.config import DTConfig, load_config
+
+    path = Path(__file__).resolve().parent.parent / "envs" / "default.toml"
+    assert load_config(path) == DTConfig()
+
+
+def test_a_partial_downlink_table_keeps_the_downlink_defaults():
+    from dt_highway.config import load_config
+
+    down = load_config(overrides=["twin.downlink.rate_hz=5"]).twin.downlink
+    assert (down.rate_hz, down.latency_mean_s, down.latency_jitter_s, down.loss_prob) == (5.0, 0.05, 0.01, 0.0)
