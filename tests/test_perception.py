@@ -268,3 +268,11 @@ def test_batch_matching_equals_one_target_at_a_time(seed):
         for k in range(30):
             m = match_distance(anchors[k], boxes, dist, gnss[k], fallback)
             assert (m.index if m.index is not None else -1, m.rule) == (idx[k], rules[k])
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 20, 21])
+def test_row_median_is_numpy_median(n):
+    from dt_highway.perception.depth import row_median
+
+    values = np.random.default_rng(n).normal(30, 10, (7, n))
+    np.testing.assert_array_equal(row_median(values), np.median(values, axis=1))

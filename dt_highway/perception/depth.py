@@ -22,6 +22,17 @@ Reducer = Literal["mean", "median"]
 Reference = Literal["planar", "range"]
 
 
+def row_median(values: np.ndarray) -> np.ndarray:
+    """Median of each row of a 2-D array: ``np.median(values, axis=1)`` from a partial sort
+    (the same numbers, without ``np.median``'s overhead on small arrays)."""
+    n = values.shape[1]
+    mid = n // 2
+    if n % 2:
+        return np.partition(values, mid, axis=1)[:, mid]
+    part = np.partition(values, [mid - 1, mid], axis=1)
+    return (part[:, mid - 1] + part[:, mid]) / 2
+
+
 def sample_regions(boxes: np.ndarray, th: float, shape: tuple[int, int]) -> np.ndarray:
     """The sampling area of each box: the lower quarter of the box shrunk by ``th``.
 
@@ -102,5 +113,5 @@ def box_distances(
     samples = depth_m[v, u].astype(float)
     if reference == "range":
         samples = samples * ray_norm[v, u]
-    out = samples.sum(axis=1) / n if reducer == "mean" else np.median(samples, axis=1)
+    out = samples.sum(axis=1) / n if reducer == "mean" else row_median(samples)
     return np.where(inside, out, np.nan)

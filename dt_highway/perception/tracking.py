@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from dt_highway.perception.detect import iou
 
 # SORT's noise (Bewley et al.): process Q = diag(1, 1, 1, 1e-2, 1e-2, 1e-2, 1e-4) and
 # measurement R = diag(1, 1, 10, 10) over (u, v, s, r, du, dv, ds); initial P = diag(10, 10,
@@ -148,8 +147,11 @@ class BoxTracker:
             ix = np.maximum(np.minimum(b[:, None, 2], pred[None, :, 2]) - np.maximum(b[:, None, 0], pred[None, :, 0]), 0.0)
             iy = np.maximum(np.minimum(b[:, None, 3], pred[None, :, 3]) - np.maximum(b[:, None, 1], pred[None, :, 1]), 0.0)
             area = np.maximum((pred[:, 2] - pred[:, 0]) * (pred[:, 3] - pred[:, 1]), 1e-6)
-            cover = ix * iy / area[None, :]  # share of each track's box inside each detection
-            overlap = iou(b, pred)
+            inter = ix * iy
+            cover = inter / area[None, :]  # share of each track's box inside each detection
+            area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+            union = area_b[:, None] + area[None, :] - inter
+            overlap = np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)  # IoU
             # a merged box covers two or more established tracks and resembles none of them
             covers = (cover >= self.merge_cover) & established[None, :]
             merged = (covers.sum(axis=1) >= 2) & ((overlap * covers).max(axis=1) < self.merge_iou)
