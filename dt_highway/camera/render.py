@@ -433,6 +433,10 @@ class CameraRenderer:
         decal_colour = np.array([_DECAL_COLOURS[kind] for kind in m.decal_kind], dtype=float)
         self._decal_colour = decal_colour
         self._hull_vertices = np.concatenate(m.part_vertices)
+        # faces in painting order: the cabin after the body when the camera is above the
+        # body's top, before it otherwise (fixed by the mount and the car's height)
+        cam_above_body = camera.mount.height_m >= m.body_top * settings.vehicle_height_m
+        self._face_seq = [int(f) for p in ((0, 1) if cam_above_body else (1, 0)) for f in np.flatnonzero(m.face_part == p)]
 
     # ------------------------------------------------------------------ public
     def render(self, pose: Pose, vehicles: VehicleSet, time_s: float = math.nan) -> CameraFrame:
@@ -546,8 +550,7 @@ class CameraRenderer:
         order = self._paint_order(np.flatnonzero(on_image), vs, idx, boxes, cam_centre, zc[idx], hull_z)
         # --- paint colour and face id of each polygon, far to near
         face_map = self._face_map
-        cam_above_body = self.camera.mount.height_m >= m.body_top * height
-        face_seq = [f for p in ((0, 1) if cam_above_body else (1, 0)) for f in np.flatnonzero(m.face_part == p).tolist()]
+        face_seq = self._face_seq
         with_decals_seq = [[f] + self._face_decals[f] for f in range(len(m.faces))]
         colour_list = np.clip(colour, 0, 255).astype(np.int64).tolist()
         front_list = front.tolist()
@@ -633,14 +636,11 @@ class CameraRenderer:
 
     def _clipped_polygons(self, pc: np.ndarray, front: np.ndarray, near: float) -> list[tuple[int, np.ndarray]]:
         """Front faces (with decals) of a vehicle crossing the near plane, clipped to it, fixed point."""
-        m, k = self.model, self.camera.intrinsics
+        k = self.camera.intrinsics
         out: list[tuple[int, np.ndarray]] = []
-        cam_above_body = self.camera.mount.height_m >= m.body_top * self.settings.vehicle_height_m
-        for part in (0, 1) if cam_above_body else (1, 0):
-            for f in np.flatnonzero(m.face_part == part):
-                if not front[f]:
-                    continue
-                for code in [int(f)] + self._face_decals[f]:
+        for f in self._face_seq:
+            if front[f]:
+                for code in [f] + self._face_decals[f]:
                     poly = pc[self._polys[code]]
                     if poly[:, 2].min() <= near:
                         poly = _clip_near(poly, near)
