@@ -187,18 +187,33 @@ class PinholeCamera:
             nearer than ``near_m``) get NaN pixels and ``in_front = False``
         """
         pc = self.to_camera(points_world, pose)
-        z = pc[:, 2]
+        uv, z = self._pixels(pc)
         in_front = z > self.near_m
         k = self.intrinsics
-        uv = np.full((len(pc), 2), np.nan)
-        zf = z[in_front]
-        uv[in_front, 0] = k.fx_px * pc[in_front, 0] / zf + k.cx_px
-        uv[in_front, 1] = k.fy_px * pc[in_front, 1] / zf + k.cy_px
         with np.errstate(invalid="ignore"):
             in_image = in_front & (uv[:, 0] >= -0.5) & (uv[:, 0] < k.width_px - 0.5) & (uv[:, 1] >= -0.5) & (
                 uv[:, 1] < k.height_px - 0.5
             )
         return Projection(uv, z, np.linalg.norm(pc, axis=1), in_front, in_image)
+
+    def pixels(self, points_world: np.ndarray, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """The lean part of :meth:`project`, for hot paths: pixels and planar depth only.
+
+        :param points_world: ``(N, 3)`` points, ``z`` up [m]
+        :param pose: the ego's pose
+        :return: ``(N, 2)`` pixels (NaN when not in front of the near plane) and ``(N,)``
+            planar depth [m]
+        """
+        return self._pixels(self.to_camera(points_world, pose))
+
+    def _pixels(self, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k = self.intrinsics
+        z = pc[:, 2]
+        in_front = z > self.near_m
+        zs = np.where(in_front, z, 1.0)
+        uv = np.stack([k.fx_px * pc[:, 0] / zs + k.cx_px, k.fy_px * pc[:, 1] / zs + k.cy_px], axis=1)
+        uv[~in_front] = np.nan
+        return uv, z
 
     def unproject(self, uv_px: np.ndarray, depth_m: np.ndarray, pose: Pose) -> np.ndarray:
         """Pixels with planar depth back to world points (``z`` up), ``(N, 3)`` [m]."""

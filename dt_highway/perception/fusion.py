@@ -149,16 +149,9 @@ class Fusion:
             age = np.where(np.isfinite(age), age, 0.0)
             x = x + pts[:, 2] * np.cos(pts[:, 3]) * age
             y = y + pts[:, 2] * np.sin(pts[:, 3]) * age
-        # the pinhole model (paper Eq. 1-3) written out for speed; same as camera.project
-        rot, t = self.camera.extrinsics(frame.pose)
-        pc = np.stack([x, y, np.full(len(x), -self.settings.anchor_height_m)], axis=1) @ rot.T + t  # z down
-        k = self.camera.intrinsics
-        z = pc[:, 2]
-        front = z > self.camera.near_m
-        zs = np.where(front, z, 1.0)
-        uv = np.stack([k.fx_px * pc[:, 0] / zs + k.cx_px, k.fy_px * pc[:, 1] / zs + k.cy_px], axis=1)
-        uv[~front] = np.nan
-        return uv, np.where(front, z, np.nan)
+        world = np.stack([x, y, np.full(len(x), self.settings.anchor_height_m)], axis=1)
+        uv, z = self.camera.pixels(world, frame.pose)  # the pinhole model (paper Eq. 1-3)
+        return uv, np.where(np.isfinite(uv[:, 0]), z, np.nan)
 
     def expected_boxes(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
         """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
