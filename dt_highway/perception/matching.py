@@ -66,6 +66,12 @@ def containing(boxes: np.ndarray, anchor_uv: np.ndarray) -> np.ndarray:
     return np.flatnonzero((b[:, 0] <= u) & (u <= b[:, 2]) & (b[:, 1] <= v) & (v <= b[:, 3]))
 
 
+def _nearest_centre(boxes: np.ndarray, cand: np.ndarray, anchor: np.ndarray) -> int:
+    """The candidate box whose centre is nearest the anchor."""
+    centres = (boxes[cand, :2] + boxes[cand, 2:]) / 2
+    return int(cand[np.argmin(np.hypot(*(centres - anchor).T))])
+
+
 def _fallback(boxes: np.ndarray, anchor: np.ndarray, fallback: Fallback, max_px: float) -> Match:
     if fallback == "none" or not len(boxes):
         return Match(None, "none")
@@ -104,9 +110,7 @@ def match_baseline(
     if len(cand) == 1:
         return Match(int(cand[0]), "single", (int(cand[0]),))
     if len(cand) > 1:
-        centres = (b[cand, :2] + b[cand, 2:]) / 2
-        best = int(cand[np.argmin(np.hypot(*(centres - anchor).T))])
-        return Match(best, "centre", tuple(int(c) for c in cand))
+        return Match(_nearest_centre(b, cand, anchor), "centre", tuple(int(c) for c in cand))
     return _fallback(b, anchor, fallback, max_fallback_px)
 
 
@@ -137,16 +141,12 @@ def match_distance(
     if anchor is None or not len(b):
         return Match(None, "none")
     cand = containing(b, anchor)
-    if len(cand) == 1:
-        return Match(int(cand[0]), "single", (int(cand[0]),))
     if len(cand) > 1:
         diff = np.abs(d[cand] - gnss_distance_m)  # Alg. 2 lines 10-14, with |.|
-        if not math.isfinite(gnss_distance_m) or not np.isfinite(diff).any():
-            centre = match_baseline(anchor, b[cand])
-            return Match(int(cand[centre.index]), "centre", tuple(int(c) for c in cand))
-        best = int(cand[np.nanargmin(diff)])
-        return Match(best, "depth", tuple(int(c) for c in cand))
-    return _fallback(b, anchor, fallback, max_fallback_px)
+        if math.isfinite(gnss_distance_m) and np.isfinite(diff).any():
+            return Match(int(cand[np.nanargmin(diff)]), "depth", tuple(int(c) for c in cand))
+    # one box, none, or no usable distance: the baseline's rules
+    return match_baseline(anchor, b, fallback, max_fallback_px)
 
 
 def match_each(
