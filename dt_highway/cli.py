@@ -8,7 +8,6 @@ input (no traceback for a user's mistake).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -17,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.jsonio import dump_json
 
 
 class _Parser(argparse.ArgumentParser):
@@ -24,22 +24,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> Any:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def _json_safe(obj: Any) -> Any:
-    """NaN and infinities become ``null`` so the output is strict JSON."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
-def dump_json(obj: Any) -> str:
-    """:return: ``obj`` as strict, indented JSON."""
-    return json.dumps(_json_safe(obj), indent=2, sort_keys=False, allow_nan=False)
 
 
 def _seed(text: str) -> int:

@@ -516,6 +516,12 @@ def parse_override(text: str) -> dict[str, Any]:
         value: Any = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw
+    return dotted_tree(key, value)
+
+
+def dotted_tree(key: str, value: Any) -> dict[str, Any]:
+    """Turn ``("a.b.c", value)`` into ``{"a": {"b": {"c": value}}}`` (a one-key layer to merge)."""
+    parts = key.split(".")
     tree: dict[str, Any] = {parts[-1]: value}
     for part in reversed(parts[:-1]):
         tree = {part: tree}

@@ -17,7 +17,6 @@ target's ground-truth visible box; selecting nothing is a miss.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -26,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from dt_highway.config import DTConfig, merge
+from dt_highway.config import DTConfig, deep_merge, dotted_tree, merge
+from dt_highway.jsonio import dump_json
 from dt_highway.perception import METHODS, Fusion, fusion_settings, iou, make_detector
 from dt_highway.perception.matching import containing
 
@@ -240,7 +240,7 @@ def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
         w = csv.DictWriter(fh, fieldnames=["method", "subset", "iou_threshold", "accuracy"])
         w.writeheader()
         w.writerows(curve)
-    paths[1].write_text(json.dumps(_finite(result.summary()), indent=2) + "\n")
+    paths[1].write_text(dump_json(result.summary()) + "\n")
     with paths[2].open("w", newline="") as fh:
         if result.rows:
             w = csv.DictWriter(fh, fieldnames=list(result.rows[0]))
@@ -277,16 +277,6 @@ def plot_curve(curve: list[dict[str, Any]], path: Path, title: str = "") -> None
     plt.close(fig)
 
 
-def _finite(obj: Any) -> Any:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    return obj
-
-
 SWEEP = (
     ("gnss_noise_sigma_m", "twin.uplink.noise_sigma_m", (0.5, 1.0, 2.0, 3.0)),
     ("latency_mean_s", "twin.uplink.latency_mean_s", (0.0, 0.1, 0.3, 0.5)),
@@ -295,16 +285,6 @@ SWEEP = (
 """One-at-a-time sweep of the uplink (the other settings at their configured values)"""
 STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
 """The degraded uplink of the targets: 300 ms at 1 Hz"""
-
-
-def _override(key: str, value: float) -> dict[str, Any]:
-    tree: dict[str, Any] = {}
-    node = tree
-    parts = key.split(".")
-    for p in parts[:-1]:
-        node = node.setdefault(p, {})
-    node[parts[-1]] = value
-    return tree
 
 
 def run_sweep(
@@ -323,10 +303,10 @@ def run_sweep(
     """
     runs: list[tuple[str, Any, dict[str, Any]]] = []
     for name, key, values in SWEEP:
-        runs += [(name, v, _override(key, v)) for v in values]
+        runs += [(name, v, dotted_tree(key, v)) for v in values]
     stress: dict[str, Any] = {}
     for key, v in STRESS.items():
-        stress = _merge_dicts(stress, _override(key, v))
+        stress = deep_merge(stress, dotted_tree(key, v))
     runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
     rows = []
     for name, value, extra in runs:
@@ -338,13 +318,6 @@ def run_sweep(
                          "acc_iou70": s["acc_iou70"], "acc_iou70_tricky": s["acc_iou70_tricky"],
                          "n_frames": summ["n_frames"], "n_tricky": summ["n_tricky"]})
     return rows
-
-
-def _merge_dicts(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge_dicts(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
@@ -363,7 +336,7 @@ def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    paths[1].write_text(json.dumps(_finite(rows), indent=2) + "\n")
+    paths[1].write_text(dump_json(rows) + "\n")
     methods = list(dict.fromkeys(r["method"] for r in rows))
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.6), dpi=110, sharey=True)
     labels = {"gnss_noise_sigma_m": "GNSS noise sigma [m]", "latency_mean_s": "uplink latency [s]", "rate_hz": "update rate [Hz]"}
