@@ -276,3 +276,12 @@ def test_row_median_is_numpy_median(n):
 
     values = np.random.default_rng(n).normal(30, 10, (7, n))
     np.testing.assert_array_equal(row_median(values), np.median(values, axis=1))
+
+
+def test_config_sections_and_settings_share_their_defaults():
+    from dt_highway.config import DetectorConfig, FusionConfig
+    from dt_highway.perception import fusion_settings, make_detector
+
+    assert make_detector(DetectorConfig()).settings == SimulatedDetectorSettings()
+    assert fusion_settings(FusionConfig()) == FusionSettings()
+    assert fusion_settings(FusionConfig(), "baseline").method == "baseline"
