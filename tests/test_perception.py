@@ -163,6 +163,75 @@ def test_a_merged_detection_does_not_capture_two_tracks():
     assert set(tracker.coasting()[0].tolist()) == {1, 2}
 
 
+
+class _FullSortFilter:
+    """SORT's 7-state Kalman filter written out with full matrices (Bewley et al. 2016), the
+    reference for :class:`BoxTracker`'s decoupled filters (same noise: SORT's, with the aspect
+    ratio's process noise 1e-2)."""
+
+    F = np.eye(7) + np.eye(7, k=4)
+    H = np.eye(4, 7)
+    Q = np.diag([1.0, 1.0, 1.0, 1e-2, 1e-2, 1e-2, 1e-4])
+    R = np.diag([1.0, 1.0, 10.0, 10.0])
+
+    def __init__(self, box):
+        self.x = np.concatenate([self._z(box), np.zeros(3)])
+        self.P = np.diag([10.0, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4])
+
+    @staticmethod
+    def _z(b):
+        w, h = b[2] - b[0], b[3] - b[1]
+        return np.array([b[0] + w / 2, b[1] + h / 2, w * h, w / h])
+
+    def predict(self):
+        if self.x[2] + self.x[6] <= 0:
+            self.x[6] = 0.0
+        self.x = self.F @ self.x
+        self.P = self.F @ self.P @ self.F.T + self.Q
+
+    def update(self, box):
+        s = self.H @ self.P @ self.H.T + self.R
+        k = self.P @ self.H.T @ np.linalg.inv(s)
+        self.x = self.x + k @ (self._z(box) - self.H @ self.x)
+        self.P = (np.eye(7) - k @ self.H) @ self.P
+
+    def box(self):
+        w = np.sqrt(self.x[2] * self.x[3])
+        h = self.x[2] / w
+        return np.array([self.x[0] - w / 2, self.x[1] - h / 2, self.x[0] + w / 2, self.x[1] + h / 2])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_decoupled_filters_equal_sorts_full_kalman_filter(seed):
+    """Tracks far apart (association is unambiguous) with noisy, growing boxes and missed
+    frames: every coasting track's predicted box equals the full 7-state filter's."""
+    rng = np.random.default_rng(seed)
+    n = 6
+    start = np.stack([np.arange(n) * 100.0 + 20, rng.uniform(100, 200, n)], axis=1)
+    size = rng.uniform(20, 40, (n, 2))
+    vel = rng.normal(0, 2, (n, 2))
+    tracker, ref = BoxTracker(max_misses=50), []
+    compared = 0
+    for f in range(30):
+        centre, wh = start + f * vel, size * (1 + 0.02 * f)
+        boxes = np.concatenate([centre - wh / 2, centre + wh / 2], axis=1) + rng.normal(0, 1.0, (n, 4))
+        seen = rng.random(n) > 0.25 if f else np.ones(n, dtype=bool)
+        tracker.update(boxes[seen])
+        if not f:  # all seen in the first frame: vehicle i starts track i + 1
+            ref = [_FullSortFilter(b) for b in boxes]
+            continue
+        for i in range(n):
+            ref[i].predict()
+            if seen[i]:
+                ref[i].update(boxes[i])
+        assert sorted(t.track_id for t in tracker.tracks) == list(range(1, n + 1))
+        coast_ids, coast_boxes = tracker.coasting(min_hits=1)
+        assert sorted(coast_ids.tolist()) == [i + 1 for i in range(n) if not seen[i]]
+        for tid, box in zip(coast_ids.tolist(), coast_boxes):
+            np.testing.assert_allclose(box, ref[tid - 1].box(), rtol=1e-9, atol=1e-9)
+            compared += 1
+    assert compared > 20
+
 # ----------------------------------------------------------------------------- simulated detector
 def _frame(truths: list[VehicleTruth], depth_m: float = 28.0) -> CameraFrame:
     h, w = 180, 320

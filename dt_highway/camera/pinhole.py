@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dt_highway._jit import kernel
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -120,6 +122,23 @@ class Projection:
     in_image: np.ndarray
 
 
+@kernel
+def _perspective(pc: np.ndarray, fx: float, fy: float, cx: float, cy: float, near: float) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (2)-(3): camera-frame points ``(N, 3)`` to pixels ``(N, 2)`` (NaN when not beyond
+    ``near``) and planar depth ``(N,)`` [m]."""
+    n = pc.shape[0]
+    uv = np.empty((n, 2))
+    z = np.empty(n)
+    for i in range(n):
+        z[i] = pc[i, 2]
+        if pc[i, 2] > near:
+            uv[i, 0] = fx * pc[i, 0] / pc[i, 2] + cx
+            uv[i, 1] = fy * pc[i, 1] / pc[i, 2] + cy
+        else:
+            uv[i, 0] = uv[i, 1] = np.nan
+    return uv, z
+
+
 def _z_down(points: np.ndarray) -> np.ndarray:
     out = np.array(points, dtype=float, copy=True)
     out[..., 2] = -out[..., 2]
@@ -145,13 +164,20 @@ class PinholeCamera:
         """World-to-camera rotation and translation for an ego pose (the inverse of Eq. 1).
 
         :return: ``R`` (3x3, proper rotation) and ``t`` (3,) with ``P_c = R P + t`` for ``P``
-            in the right-handed world frame (``z`` down); see the module docstring
+            in the right-handed world frame (``z`` down); see the module docstring. The last
+            pose's pair is kept (read-only): a frame's projections all share one pose
         """
+        cached = self.__dict__.get("_extrinsics_cache")
+        if cached is not None and cached[0] == pose and cached[1] is self.mount:
+            return cached[2], cached[3]
         ch, sh = math.cos(pose.heading_rad), math.sin(pose.heading_rad)
         ego_to_world = np.array([[ch, -sh, 0.0], [sh, ch, 0.0], [0.0, 0.0, 1.0]])
         rot = self._axes_in_ego @ ego_to_world.T  # rows: the camera's right, down, forward axes
         centre = np.array([pose.x_m, pose.y_m, 0.0]) + ego_to_world @ self._offset_in_ego
-        return rot, -rot @ centre
+        t = -rot @ centre
+        rot.flags.writeable = t.flags.writeable = False  # shared by every caller of this pose
+        self.__dict__["_extrinsics_cache"] = (pose, self.mount, rot, t)
+        return rot, t
 
     @property
     def _axes_in_ego(self) -> np.ndarray:
@@ -208,12 +234,7 @@ class PinholeCamera:
 
     def _pixels(self, pc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         k = self.intrinsics
-        z = pc[:, 2]
-        in_front = z > self.near_m
-        zs = np.where(in_front, z, 1.0)
-        uv = np.stack([k.fx_px * pc[:, 0] / zs + k.cx_px, k.fy_px * pc[:, 1] / zs + k.cy_px], axis=1)
-        uv[~in_front] = np.nan
-        return uv, z
+        return _perspective(np.ascontiguousarray(pc, dtype=float), k.fx_px, k.fy_px, k.cx_px, k.cy_px, self.near_m)
 
     def unproject(self, uv_px: np.ndarray, depth_m: np.ndarray, pose: Pose) -> np.ndarray:
         """Pixels with planar depth back to world points (``z`` up), ``(N, 3)`` [m]."""

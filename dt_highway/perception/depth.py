@@ -18,19 +18,33 @@ from typing import Literal
 
 import numpy as np
 
+from dt_highway._jit import fmax, fmin, kernel
+
 Reducer = Literal["mean", "median"]
 Reference = Literal["planar", "range"]
 
 
 def row_median(values: np.ndarray) -> np.ndarray:
-    """Median of each row of a 2-D array: ``np.median(values, axis=1)`` from a partial sort
-    (the same numbers, without ``np.median``'s overhead on small arrays)."""
-    n = values.shape[1]
-    mid = n // 2
-    if n % 2:
-        return np.partition(values, mid, axis=1)[:, mid]
-    part = np.partition(values, [mid - 1, mid], axis=1)
-    return (part[:, mid - 1] + part[:, mid]) / 2
+    """Median of each row of a 2-D array: ``np.median(values, axis=1)`` (the same numbers,
+    compiled, without ``np.median``'s overhead on small arrays)."""
+    return _row_medians(np.ascontiguousarray(values, dtype=float))
+
+
+@kernel
+def _regions(b: np.ndarray, th: float, height: int, width: int) -> np.ndarray:
+    """:func:`sample_regions` without the checks (compiled)."""
+    out = np.empty((b.shape[0], 4))
+    lo, hi_u, hi_v = -0.5, width - 0.5, height - 0.5
+    for i in range(b.shape[0]):
+        cx, cy = (b[i, 0] + b[i, 2]) / 2, (b[i, 1] + b[i, 3]) / 2
+        half_w, half_h = (b[i, 2] - b[i, 0]) * (1 - th) / 2, (b[i, 3] - b[i, 1]) * (1 - th) / 2
+        y2 = cy + half_h
+        y1 = y2 - half_h / 2  # the lower quarter of the shrunk box's height (2 * half_h)
+        out[i, 0] = fmin(fmax(cx - half_w, lo), hi_u)
+        out[i, 1] = fmin(fmax(y1, lo), hi_v)
+        out[i, 2] = fmin(fmax(cx + half_w, lo), hi_u)
+        out[i, 3] = fmin(fmax(y2, lo), hi_v)
+    return out
 
 
 def sample_regions(boxes: np.ndarray, th: float, shape: tuple[int, int]) -> np.ndarray:
@@ -47,16 +61,54 @@ def sample_regions(boxes: np.ndarray, th: float, shape: tuple[int, int]) -> np.n
     """
     if not 0.0 <= th < 1.0:
         raise ValueError(f"the resize threshold th must be in [0, 1) (got {th})")
-    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
-    cx, cy = (b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2
-    half_w, half_h = (b[:, 2] - b[:, 0]) * (1 - th) / 2, (b[:, 3] - b[:, 1]) * (1 - th) / 2
-    x1, x2 = cx - half_w, cx + half_w
-    y2 = cy + half_h
-    y1 = y2 - half_h / 2  # the lower quarter of the shrunk box's height (2 * half_h)
-    h, w = shape
-    lo = np.array([-0.5, -0.5, -0.5, -0.5])
-    hi = np.array([w - 0.5, h - 0.5, w - 0.5, h - 0.5])
-    return np.minimum(np.maximum(np.stack([x1, y1, x2, y2], axis=1), lo), hi)
+    b = np.ascontiguousarray(boxes, dtype=float).reshape(-1, 4)
+    return _regions(b, float(th), int(shape[0]), int(shape[1]))
+
+
+@kernel
+def _row_medians(samples: np.ndarray) -> np.ndarray:
+    """The middle value of each row, or the mean of the two middle values."""
+    n_box, n = samples.shape
+    out = np.empty(n_box)
+    mid = n // 2
+    row = np.empty(n)
+    for i in range(n_box):
+        for j in range(n):  # insertion sort: the rows are short (Algorithm 1's n points)
+            v = samples[i, j]
+            k = j
+            while k > 0 and (row[k - 1] > v or row[k - 1] != row[k - 1]):
+                row[k] = row[k - 1]
+                k -= 1
+            row[k] = v
+        out[i] = row[mid] if n % 2 else (row[mid - 1] + row[mid]) / 2
+    return out
+
+
+@kernel
+def _sample(depth_m: np.ndarray, area: np.ndarray, draw_u: np.ndarray, draw_v: np.ndarray,
+            ray_norm: np.ndarray, use_ray_norm: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Depth at ``n`` pixels per area, drawn uniformly from ``draw_u``, ``draw_v`` in ``[0, 1)``.
+
+    :return: samples ``(N, n)`` [m] and whether each area lies in the image ``(N,)``
+    """
+    height, width = depth_m.shape
+    n_box, n = draw_u.shape
+    samples = np.empty((n_box, n))
+    inside = np.empty(n_box, dtype=np.bool_)
+    for i in range(n_box):
+        # integer pixel columns/rows whose centres lie in the area
+        c0, c1 = np.ceil(area[i, 0]), fmin(np.floor(area[i, 2]), width - 1)
+        r0, r1 = np.ceil(area[i, 1]), fmin(np.floor(area[i, 3]), height - 1)
+        if c1 < c0 or r1 < r0:
+            # a degenerate area (thinner than a pixel) falls back to the pixel at its centre
+            c0 = c1 = np.round((area[i, 0] + area[i, 2]) / 2)
+            r0 = r1 = np.round((area[i, 1] + area[i, 3]) / 2)
+        inside[i] = c0 >= 0 and c0 < width and r0 >= 0 and r0 < height
+        for j in range(n):
+            u = min(max(int(c0 + np.floor(draw_u[i, j] * (c1 - c0 + 1))), 0), width - 1)
+            v = min(max(int(r0 + np.floor(draw_v[i, j] * (r1 - r0 + 1))), 0), height - 1)
+            samples[i, j] = float(depth_m[v, u]) * float(ray_norm[v, u]) if use_ray_norm else float(depth_m[v, u])
+    return samples, inside
 
 
 def box_distances(
@@ -94,24 +146,9 @@ def box_distances(
     area = sample_regions(boxes, th, depth_m.shape)
     if not len(area):
         return np.zeros(0)
-    # integer pixel columns/rows whose centres lie in the area
-    c0, c1 = np.ceil(area[:, 0]), np.floor(area[:, 2])
-    r0, r1 = np.ceil(area[:, 1]), np.floor(area[:, 3])
-    c1 = np.minimum(c1, depth_m.shape[1] - 1)
-    r1 = np.minimum(r1, depth_m.shape[0] - 1)
-    empty = (c1 < c0) | (r1 < r0)
-    # a degenerate area (thinner than a pixel) falls back to the pixel at its centre
-    cc = np.round((area[:, 0] + area[:, 2]) / 2)
-    rc = np.round((area[:, 1] + area[:, 3]) / 2)
-    c0, c1 = np.where(empty, cc, c0), np.where(empty, cc, c1)
-    r0, r1 = np.where(empty, rc, r0), np.where(empty, rc, r1)
-    inside = (c0 >= 0) & (c0 < depth_m.shape[1]) & (r0 >= 0) & (r0 < depth_m.shape[0])
-    u = (c0[:, None] + np.floor(rng.random((len(area), n)) * (c1 - c0 + 1)[:, None])).astype(np.intp)
-    v = (r0[:, None] + np.floor(rng.random((len(area), n)) * (r1 - r0 + 1)[:, None])).astype(np.intp)
-    u = np.minimum(np.maximum(u, 0), depth_m.shape[1] - 1)
-    v = np.minimum(np.maximum(v, 0), depth_m.shape[0] - 1)
-    samples = depth_m[v, u].astype(float)
-    if reference == "range":
-        samples = samples * ray_norm[v, u]
-    out = samples.sum(axis=1) / n if reducer == "mean" else row_median(samples)
+    draw_u, draw_v = rng.random((len(area), n)), rng.random((len(area), n))
+    norm = ray_norm if reference == "range" else depth_m
+    samples, inside = _sample(depth_m, area, draw_u, draw_v, norm, reference == "range")
+    # the mean stays in numpy: its summation order defines the last bit
+    out = samples.sum(axis=1) / n if reducer == "mean" else _row_medians(samples)
     return np.where(inside, out, np.nan)

@@ -24,10 +24,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from operator import attrgetter
+from typing import Literal, NamedTuple
 
 import numpy as np
 
+from dt_highway._jit import kernel
 from dt_highway.camera.pinhole import PinholeCamera
 from dt_highway.camera.render import CameraFrame
 from dt_highway.perception.depth import box_distances
@@ -41,6 +43,32 @@ _BOX_CORNERS = np.array([[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5
 _BOX_EDGES = np.array([[i, j] for i in range(8) for j in range(i + 1, 8)
                        if np.sum(_BOX_CORNERS[i] != _BOX_CORNERS[j]) == 1])
 """The 12 edges of that box"""
+
+_STATE = attrgetter("x_m", "y_m", "speed_mps", "heading_rad", "t_fix_s")
+
+
+def _twin_state(twin: Sequence[TwinVehicleView]) -> np.ndarray:
+    """``(K, 5)`` position x, y [m], speed [m/s], heading [rad] and fix time [s] of twin vehicles."""
+    return np.array(list(map(_STATE, twin)), dtype=float).reshape(-1, 5)
+
+
+@kernel
+def _positions(state: np.ndarray, now_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Latency compensation: each position moved to ``now_s`` at its speed and heading (an
+    unknown or negative age counts as 0).
+
+    :return: x and y [m]
+    """
+    n = state.shape[0]
+    x, y = np.empty(n), np.empty(n)
+    for i in range(n):
+        age = now_s - state[i, 4]
+        if not np.isfinite(age) or age < 0.0:
+            age = 0.0
+        x[i] = state[i, 0] + state[i, 2] * np.cos(state[i, 3]) * age
+        y[i] = state[i, 1] + state[i, 2] * np.sin(state[i, 3]) * age
+    return x, y
+
 
 Method = Literal["baseline", "fusion", "joint", "tracked"]
 METHODS: tuple[str, ...] = ("baseline", "fusion", "joint", "tracked")
@@ -88,8 +116,7 @@ class FusionSettings:
             raise ValueError(f"method must be one of {', '.join(METHODS)} (got {self.method!r})")
 
 
-@dataclass(frozen=True)
-class Placement:
+class Placement(NamedTuple):
     """Where the fusion put one connected vehicle in the image.
 
     :param vehicle_id: the twin's id of the vehicle
@@ -99,6 +126,8 @@ class Placement:
     :param anchor_uv: the anchor pixel (NaN when behind the camera)
     :param rule: how the box was chosen (see :mod:`~dt_highway.perception.matching`),
         ``"joint"`` or ``"track"`` for the joint methods, ``"none"`` without a box
+
+    A named tuple (immutable, and cheap to make: a frame makes one per connected vehicle).
     """
 
     vehicle_id: int
@@ -140,18 +169,7 @@ class Fusion:
         :param compensate: move each position forward by its age at its speed and heading
         :return: ``(K, 2)`` pixels (NaN when behind the camera) and ``(K,)`` planar depths [m]
         """
-        if not twin:
-            return np.zeros((0, 2)), np.zeros(0)
-        pts = np.array([[v.x_m, v.y_m, v.speed_mps, v.heading_rad, v.t_fix_s] for v in twin], dtype=float)
-        x, y = pts[:, 0], pts[:, 1]
-        if compensate:
-            age = np.clip(now_s - pts[:, 4], 0.0, None)
-            age = np.where(np.isfinite(age), age, 0.0)
-            x = x + pts[:, 2] * np.cos(pts[:, 3]) * age
-            y = y + pts[:, 2] * np.sin(pts[:, 3]) * age
-        world = np.stack([x, y, np.full(len(x), self.settings.anchor_height_m)], axis=1)
-        uv, z = self.camera.pixels(world, frame.pose)  # the pinhole model (paper Eq. 1-3)
-        return uv, np.where(np.isfinite(uv[:, 0]), z, np.nan)
+        return self._anchors(_twin_state(twin), frame, now_s, compensate)
 
     def expected_boxes(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
         """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
@@ -159,14 +177,25 @@ class Fusion:
 
         :return: ``(K, 4)`` boxes [px], NaN rows for vehicles not in view
         """
+        return self._expected_boxes(_twin_state(twin), frame, now_s)
+
+    def _anchors(self, state: np.ndarray, frame: CameraFrame, now_s: float,
+                 compensate: bool) -> tuple[np.ndarray, np.ndarray]:
+        if not len(state):
+            return np.zeros((0, 2)), np.zeros(0)
+        x, y = _positions(state, float(now_s)) if compensate else (state[:, 0], state[:, 1])
+        world = np.empty((len(x), 3))
+        world[:, 0], world[:, 1], world[:, 2] = x, y, self.settings.anchor_height_m
+        uv, z = self.camera.pixels(world, frame.pose)  # the pinhole model (paper Eq. 1-3)
+        z[~np.isfinite(uv[:, 0])] = np.nan
+        return uv, z
+
+    def _expected_boxes(self, state: np.ndarray, frame: CameraFrame, now_s: float) -> np.ndarray:
         s, k = self.settings, self.camera.intrinsics
-        if not twin:
+        if not len(state):
             return np.zeros((0, 4))
-        pts = np.array([[v.x_m, v.y_m, v.speed_mps, v.heading_rad, v.t_fix_s] for v in twin], dtype=float)
-        age = np.clip(np.nan_to_num(now_s - pts[:, 4]), 0.0, None)
-        c, sn = np.cos(pts[:, 3]), np.sin(pts[:, 3])
-        x = pts[:, 0] + pts[:, 2] * c * age
-        y = pts[:, 1] + pts[:, 2] * sn * age
+        x, y = _positions(state, float(now_s))
+        c, sn = np.cos(state[:, 3]), np.sin(state[:, 3])
         lx = _BOX_CORNERS[:, 0] * s.assumed_length_m
         ly = _BOX_CORNERS[:, 1] * s.assumed_width_m
         world = np.stack([x[:, None] + c[:, None] * lx - sn[:, None] * ly,
@@ -203,53 +232,53 @@ class Fusion:
         :return: a placement per twin vehicle, keyed by its id
         """
         s = self.settings
-        twin = [v for v in twin if v is not None and math.isfinite(v.x_m) and math.isfinite(v.y_m)]
+        twin = [v for v in twin if v is not None]
+        state = _twin_state(twin)
+        finite = np.isfinite(state[:, 0]) & np.isfinite(state[:, 1])
+        if not finite.all():  # a vehicle without a position cannot be placed
+            twin = [v for v, ok in zip(twin, finite.tolist()) if ok]
+            state = state[finite]
         boxes = np.asarray(detections.boxes, dtype=float).reshape(-1, 4)
+        n_det = len(boxes)
         if s.method == "tracked":
             # candidates: every detection (with the track it fed) and the predicted boxes of
             # established tracks that got no detection (missed, merged or hidden)
             self.tracker.update(boxes)
             coast_ids, coast_boxes = self.tracker.coasting()
-            track_ids = list(self.tracker.detection_tracks) + coast_ids.tolist()
-            is_coasting = np.concatenate([np.zeros(len(boxes), dtype=bool), np.ones(len(coast_ids), dtype=bool)])
+            track_ids = self.tracker.detection_tracks + coast_ids.tolist()
             boxes = np.concatenate([boxes, coast_boxes])
         joint = s.method in ("joint", "tracked")
-        anchors, gnss = self.anchors(frame, twin, now_s, compensate=joint)
         if not twin:
             return {}
+        anchors, gnss = self._anchors(state, frame, now_s, compensate=joint)
         if s.method == "baseline":
             dist = np.full(len(boxes), np.nan)  # RGB only: no depth
         else:
             dist = box_distances(frame.depth_m, boxes, s.th, s.n_samples, self.rng,
                                  reducer="median" if joint else "mean")
-        out: dict[int, Placement] = {}
-
+        ids = [v.vehicle_id for v in twin]
         box_list, dist_list = boxes.tolist(), dist.tolist()
-        gnss_list, anchor_list = gnss.tolist(), anchors.tolist()
+        gnss_list, anchor_list = gnss.tolist(), list(map(tuple, anchors.tolist()))
 
-        def place(k: int, idx: int | None, rule: str) -> None:
-            vid = twin[k].vehicle_id
-            if idx is None:
-                out[vid] = Placement(vid, None, math.nan, gnss_list[k], tuple(anchor_list[k]), "none")
-            else:
-                out[vid] = Placement(vid, tuple(box_list[idx]), dist_list[idx], gnss_list[k], tuple(anchor_list[k]), rule)
+        def placements(chosen: list[int], rules: list[str]) -> dict[int, Placement]:
+            return {vid: Placement(vid, tuple(box_list[j]), dist_list[j], g, a, rule) if j >= 0
+                    else Placement(vid, None, math.nan, g, a, "none")
+                    for vid, j, g, a, rule in zip(ids, chosen, gnss_list, anchor_list, rules)}
 
         if not joint:
             if s.method == "baseline":
                 chosen_idx, rules = match_each(anchors, boxes, fallback=s.fallback)
             else:
                 chosen_idx, rules = match_each(anchors, boxes, dist, gnss, fallback=s.fallback)
-            for k, (j, rule) in enumerate(zip(chosen_idx.tolist(), rules)):
-                place(k, j if j >= 0 else None, rule)
-            return out
+            return placements(chosen_idx.tolist(), rules)
         extra = None
         if s.method == "tracked" and len(boxes):
             extra = np.zeros((len(twin), len(boxes)))
-            pos = {tid: j for j, tid in enumerate(track_ids) if tid is not None}
             # a coasting track (no detection this frame) is less sure than a detected box
-            extra += s.coast_penalty * is_coasting[None, :]
-            for k, v in enumerate(twin):
-                j = pos.get(self._track_of.get(v.vehicle_id, -2))
+            extra[:, n_det:] = s.coast_penalty
+            pos = {tid: j for j, tid in enumerate(track_ids) if tid is not None}
+            for k, vid in enumerate(ids):
+                j = pos.get(self._track_of.get(vid, -2))
                 if j is not None:
                     extra[k, j] -= s.continuity_bonus
         # a vehicle whose anchor is off the image (beside the ego) is matched by its outline
@@ -258,15 +287,15 @@ class Fusion:
                 & (anchors[:, 1] >= -0.5) & (anchors[:, 1] <= k_int.height_px - 0.5))
         expected = None
         if off.any():
-            expected = np.where(off[:, None], self.expected_boxes(frame, twin, now_s), np.nan)
+            expected = np.where(off[:, None], self._expected_boxes(state, frame, now_s), np.nan)
         sigma_px = k_int.fx_px * s.position_sigma_m / np.maximum(gnss, 1.0)
-        chosen = match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
-                             expected_boxes=expected, anchor_sigma_px=sigma_px)
-        for k, idx in enumerate(chosen):
-            place(k, idx, "track" if s.method == "tracked" else "joint")
-            if s.method == "tracked":
-                if idx is not None and track_ids[idx] is not None:
-                    self._track_of[twin[k].vehicle_id] = track_ids[idx]
+        chosen = [-1 if j is None else j for j in
+                  match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
+                              expected_boxes=expected, anchor_sigma_px=sigma_px)]
+        if s.method == "tracked":
+            for vid, j in zip(ids, chosen):
+                if j >= 0 and track_ids[j] is not None:
+                    self._track_of[vid] = track_ids[j]
                 else:
-                    self._track_of.pop(twin[k].vehicle_id, None)
-        return out
+                    self._track_of.pop(vid, None)
+        return placements(chosen, ["track" if s.method == "tracked" else "joint"] * len(ids))

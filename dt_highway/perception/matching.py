@@ -28,6 +28,8 @@ from typing import Literal
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from dt_highway._jit import fmax, fmin, kernel
+
 Fallback = Literal["none", "nearest"]
 
 #: why a box was chosen (or not)
@@ -225,17 +227,6 @@ class JointCost:
     gate: float = 3.0
 
 
-def _fit(expected: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """How well each box fits each expected box: their IoU."""
-    ix = np.clip(np.minimum(expected[:, None, 2], boxes[None, :, 2]) - np.maximum(expected[:, None, 0], boxes[None, :, 0]), 0, None)
-    iy = np.clip(np.minimum(expected[:, None, 3], boxes[None, :, 3]) - np.maximum(expected[:, None, 1], boxes[None, :, 1]), 0, None)
-    inter = ix * iy
-    area_e = (expected[:, 2] - expected[:, 0]) * (expected[:, 3] - expected[:, 1])
-    area_b = np.maximum((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), 1e-9)
-    union = np.maximum(area_e[:, None] + area_b[None, :] - inter, 1e-9)
-    return inter / union
-
-
 def match_joint(
     anchors_uv: np.ndarray,
     gnss_distances_m: np.ndarray,
@@ -269,40 +260,71 @@ def match_joint(
     :param anchor_sigma_px: optional ``(K,)`` uncertainty of each anchor [px] (default 0)
     :return: for each vehicle, the index of its box or ``None``
     """
-    a = np.asarray(anchors_uv, dtype=float).reshape(-1, 2)
-    g = np.asarray(gnss_distances_m, dtype=float).reshape(-1)
-    b = np.asarray(boxes, dtype=float).reshape(-1, 4)
-    d = np.asarray(distances_m, dtype=float).reshape(-1)
+    a = np.ascontiguousarray(anchors_uv, dtype=float).reshape(-1, 2)
+    g = np.ascontiguousarray(gnss_distances_m, dtype=float).reshape(-1)
+    b = np.ascontiguousarray(boxes, dtype=float).reshape(-1, 4)
+    d = np.ascontiguousarray(distances_m, dtype=float).reshape(-1)
     out: list[int | None] = [None] * len(a)
     if not len(a) or not len(b):
         return out
-    centre = (b[:, :2] + b[:, 2:]) / 2
-    half = np.maximum(b[:, 2:] - b[:, :2], 1.0) / 2
-    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.asarray(anchor_sigma_px, dtype=float)
-    sigma = np.where(np.isfinite(sigma), sigma, 0.0)
-    scale = half[None] + 2.0 * sigma[:, None, None]  # (K, N, 2)
-    offset = (a[:, None, :] - centre[None]) / scale  # 1 = at the edge, give or take the error
-    inside = (np.abs(offset) <= 1.0).all(axis=2)
-    geo = np.hypot(offset[..., 0], offset[..., 1]) + np.where(inside, 0.0, cost.outside_penalty)
-    allowed = np.ones(geo.shape, dtype=bool)
-    depth_term = np.abs(d[None, :] - g[:, None]) / cost.depth_scale_m
-    depth_term = np.where(np.isnan(depth_term), 0.0, depth_term)
-    if expected_boxes is not None:
-        e = np.asarray(expected_boxes, dtype=float).reshape(-1, 4)
-        has = np.isfinite(e).all(axis=1)
-        if has.any():
-            fit = _fit(np.where(has[:, None], e, 0.0), b)
-            geo = np.where(has[:, None], 2.0 * (1.0 - fit), geo)
-            depth_term = np.where(has[:, None], 0.0, depth_term)
-            allowed &= ~has[:, None] | (fit >= cost.min_fit)
-    total = geo + depth_term
-    total = np.where(np.isfinite(total), total, np.inf)
-    allowed &= total <= cost.gate
-    if extra_cost is not None:
-        total = total + np.asarray(extra_cost, dtype=float).reshape(total.shape)
-    big = 1e6
-    rows, cols = linear_sum_assignment(np.where(allowed, total, big))
-    for r, c in zip(rows, cols):
+    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.ascontiguousarray(anchor_sigma_px, dtype=float).reshape(-1)
+    e = _NONE_2D if expected_boxes is None else np.ascontiguousarray(expected_boxes, dtype=float).reshape(len(a), 4)
+    extra = _NONE_2D if extra_cost is None else np.ascontiguousarray(extra_cost, dtype=float).reshape(len(a), len(b))
+    total, allowed = _joint_cost(a, g, b, d, sigma, e, extra, float(cost.depth_scale_m), float(cost.outside_penalty),
+                                 float(cost.min_fit), float(cost.gate))
+    rows, cols = linear_sum_assignment(total)
+    for r, c in zip(rows.tolist(), cols.tolist()):
         if allowed[r, c]:
-            out[int(r)] = int(c)
+            out[r] = c
     return out
+
+
+_NOT_ALLOWED = 1e6
+"""Cost given to forbidden pairs in the assignment (they are dropped afterwards)"""
+_NONE_2D = np.zeros((0, 0))
+"""An optional ``(K, ...)`` input that was not given"""
+
+
+@kernel
+def _joint_cost(a: np.ndarray, g: np.ndarray, b: np.ndarray, d: np.ndarray, sigma: np.ndarray, e: np.ndarray,
+                extra: np.ndarray, depth_scale_m: float, outside_penalty: float, min_fit: float,
+                gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`match_joint`'s cost ``(K, N)`` (forbidden pairs at ``_NOT_ALLOWED``) and which pairs are
+    allowed; ``e`` and ``extra`` may have no rows (not given)."""
+    k_n, n_b = a.shape[0], b.shape[0]
+    total = np.empty((k_n, n_b))
+    allowed = np.empty((k_n, n_b), dtype=np.bool_)
+    for i in range(k_n):
+        s = sigma[i] if np.isfinite(sigma[i]) else 0.0
+        has = e.shape[0] > 0 and np.isfinite(e[i, 0]) and np.isfinite(e[i, 1]) and np.isfinite(e[i, 2]) and np.isfinite(e[i, 3])
+        area_e = (e[i, 2] - e[i, 0]) * (e[i, 3] - e[i, 1]) if has else 0.0
+        for j in range(n_b):
+            ok = True
+            if has:
+                # expected-box row: how well the box fits the vehicle's projected outline (IoU)
+                ix = fmax(fmin(e[i, 2], b[j, 2]) - fmax(e[i, 0], b[j, 0]), 0.0)
+                iy = fmax(fmin(e[i, 3], b[j, 3]) - fmax(e[i, 1], b[j, 1]), 0.0)
+                inter = ix * iy
+                area_b = fmax((b[j, 2] - b[j, 0]) * (b[j, 3] - b[j, 1]), 1e-9)
+                fit = inter / fmax(area_e + area_b - inter, 1e-9)
+                geo = 2.0 * (1.0 - fit)
+                depth = 0.0
+                ok = fit >= min_fit
+            else:
+                # anchor row: offset from the box centre, 1 = at the edge, give or take the error
+                ou = (a[i, 0] - (b[j, 0] + b[j, 2]) / 2) / (fmax(b[j, 2] - b[j, 0], 1.0) / 2 + 2.0 * s)
+                ov = (a[i, 1] - (b[j, 1] + b[j, 3]) / 2) / (fmax(b[j, 3] - b[j, 1], 1.0) / 2 + 2.0 * s)
+                inside = np.abs(ou) <= 1.0 and np.abs(ov) <= 1.0
+                geo = np.hypot(ou, ov) + (0.0 if inside else outside_penalty)
+                depth = np.abs(d[j] - g[i]) / depth_scale_m
+                if np.isnan(depth):
+                    depth = 0.0
+            t = geo + depth
+            if not np.isfinite(t):
+                t = np.inf
+            ok = ok and t <= gate
+            allowed[i, j] = ok
+            if extra.shape[0] > 0:
+                t = t + extra[i, j]
+            total[i, j] = t if ok else _NOT_ALLOWED
+    return total, allowed
