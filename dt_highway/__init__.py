@@ -14,6 +14,7 @@ import gymnasium as gym
 
 from dt_highway.config import ConfigError, DTConfig, load_config
 from dt_highway.env import ENV_ID, DTHighwayEnv
+from dt_highway.trial_log import Trial, load_trial
 
 try:
     __version__ = version("dt-highway")
@@ -23,4 +24,4 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv")
 
-__all__ = ["ConfigError", "DTConfig", "DTHighwayEnv", "ENV_ID", "load_config", "__version__"]
+__all__ = ["ConfigError", "DTConfig", "DTHighwayEnv", "ENV_ID", "Trial", "load_config", "load_trial", "__version__"]

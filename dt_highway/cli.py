@@ -115,6 +115,77 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- study / report
+QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0, "scenario": "envs/highway-trial.toml"}
+"""The README's main job: a small paired study with the human-like driver"""
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    """A paired study of one driver in several conditions, then (with --quick) its report."""
+    from dt_highway.report import write_report
+    from dt_highway.study import find_file, plan, run_study
+
+    if args.quick:
+        driver = find_file(args.driver or QUICK["driver"], "agents")
+        scenario = find_file(args.scenario or QUICK["scenario"], "envs")
+        trials = args.trials or QUICK["trials"]
+        overrides = [f"highway.duration={QUICK['duration_s']}", *args.overrides]
+        out = args.out or "runs/quick-study"
+    else:
+        if not args.driver or not args.out:
+            raise ConfigError("dt-highway study needs --driver FILE and --out DIR (or --quick)")
+        driver, scenario = find_file(args.driver, "agents"), args.scenario
+        trials, overrides, out = args.trials or 10, list(args.overrides), args.out
+    conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides)
+    # bad driver files and configurations fail here, once, rather than in every trial
+    from dt_highway.drivers import load_driver
+
+    load_driver(driver)
+    load_config(scenario, overrides)
+    t0 = time.perf_counter()
+    with _progress(len(specs), "study", args.quiet) as bar:
+        bar.unit = "trial"
+
+        def done(r: dict[str, Any]) -> None:
+            bar.update(1)
+            if r["status"] == "failed":
+                bar.write(f"trial {Path(r['directory']).name} failed: {r.get('error')}", file=sys.stderr)
+
+        result = run_study(specs, out, args.workers, done, args.backend, args.ray_address)
+    print(f"study {out}: {len(result.completed)} trials run, {len(result.skipped)} already done, "
+          f"{len(result.failed)} failed ({time.perf_counter() - t0:.0f} s)")
+    if args.quick or args.report:
+        files = write_report(out)
+        _print_summary(files["summary"])
+        print(f"wrote {', '.join(str(f) for f in files.values())}")
+    return 1 if result.failed else 0
+
+
+def _print_summary(path: Path) -> None:
+    import json
+
+    s = json.loads(path.read_text())
+    for cond, c in s["conditions"].items():
+        sv, ttc = c["speed_variance_kmh2"], c["ttc_mean_s"]
+        f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+        print(f"  {cond:8s} n={c['n']:3d}  speed variance {f(sv['mean'])} (km/h)^2  mean TTC {f(ttc['mean'])} s  "
+              f"collisions {c['collisions']}  cut-ins {c['cut_ins']} ({c['cut_ins_marked_in_time']} marked in time)")
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """The safety-metrics report of a study directory."""
+    from dt_highway.report import write_report
+
+    try:
+        files = write_report(args.study)
+    except FileNotFoundError as err:
+        raise ConfigError(str(err)) from None
+    _print_summary(files["summary"])
+    print(f"wrote {', '.join(str(f) for f in files.values())}")
+    return 0
+
+
 # ----------------------------------------------------------------------------- camera
 def cmd_camera(args: argparse.Namespace) -> int:
     """Sample frames of the ego camera as PNGs."""
@@ -262,6 +333,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also sweep GNSS noise {0.5,1,2,3} m, latency {0,0.1,0.3,0.5} s, rate {10,5,1} Hz")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_matching)
+
+    p = sub.add_parser("study", help="a paired baseline/ADAS study of a driver (trial logs, then the report)")
+    _add_config_args(p)
+    p.add_argument("--driver", help="driver file, e.g. agents/human.toml")
+    p.add_argument("--conditions", default="baseline,adas", help="conditions (default baseline,adas)")
+    p.add_argument("--trials", type=_positive(int, "--trials"), help="pairs of trials (default 10; --quick: 3)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the first pair; pair i uses seed + i (default 0)")
+    p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
+    p.add_argument("--out", help="study directory, e.g. runs/<name> (--quick: runs/quick-study)")
+    p.add_argument("--backend", choices=("process", "ray"), default="process", help="process pool (default) or Ray tasks")
+    p.add_argument("--ray-address", help="address of an existing Ray cluster")
+    p.add_argument("--quick", action="store_true", help="a small study with the human-like driver, then its report")
+    p.add_argument("--report", action="store_true", help="write the report when the study is done")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("report", help="the safety-metrics report of a study directory")
+    p.add_argument("study", help="study directory (runs/<name>)")
+    p.set_defaults(func=cmd_report)
 
     bench = sub.add_parser("bench", help="benchmarks that print numbers")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH")

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.action import action_factory
-from highway_env.envs.common.observation import KinematicObservation, ObservationType
+from highway_env.envs.common.observation import KinematicObservation, ObservationType, observation_factory
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
@@ -36,6 +36,8 @@ from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
+from dt_highway.drivers.control import DriverAction
+from dt_highway.safety import SafetyMonitor
 from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
 from dt_highway.traffic import (
     EGO_ID,
@@ -191,6 +193,10 @@ class DTHighwayEnv(HighwayEnv):
         self.detector = None
         self.fusion: Fusion | None = None
         self.adas: dict[str, Any] | None = None
+        self.safety = SafetyMonitor(lane_width_m=StraightLane.DEFAULT_WIDTH)
+        self._safety_on = False
+        self._safety_samples: list[dict[str, Any]] = []
+        self._cut_ins: list[dict[str, Any]] = []
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
         super().__init__(config, render_mode)
@@ -228,17 +234,23 @@ class DTHighwayEnv(HighwayEnv):
                 raise ConfigError(
                     f"highway.observation for type 'Camera' takes only 'depth' (got {sorted(obs_cfg)})"
                 ) from None
-            self.action_type = action_factory(self, self.config["action"])
-            self.observation_space = self.observation_type.space()
-            self.action_space = self.action_type.space()
-            return
-        super().define_spaces()
-        if self.dt_config.twin.in_observation:
-            obs_cfg = dict(self.config["observation"])
+        elif self.dt_config.twin.in_observation:
             if obs_cfg.pop("type", "Kinematics") != "Kinematics":
                 raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
             self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
-            self.observation_space = self.observation_type.space()
+        else:
+            self.observation_type = observation_factory(self, self.config["observation"])
+        act_cfg = dict(self.config["action"])
+        if act_cfg.get("type") == "Driver":
+            act_cfg.pop("type")
+            try:
+                self.action_type = DriverAction(self, **act_cfg)
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"highway.action: {err}") from None
+        else:
+            self.action_type = action_factory(self, self.config["action"])
+        self.observation_space = self.observation_type.space()
+        self.action_space = self.action_type.space()
 
     # ------------------------------------------------------------------ reset
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
@@ -296,6 +308,7 @@ class DTHighwayEnv(HighwayEnv):
         self._built_for = key
 
     def _reset(self) -> None:
+        self._safety_on = False
         self._build_persistent()
         rngs = self._component_rngs()
         cfg = self.dt_config
@@ -337,6 +350,10 @@ class DTHighwayEnv(HighwayEnv):
             self.fusion = Fusion(self.camera.camera, fusion_settings(cfg.fusion), rngs["fusion"])
         else:
             self.detector, self.fusion = None, None
+        self.safety.reset()
+        self._safety_samples, self._cut_ins = [], []
+        self._safety_on = True
+        self._sample_safety()
 
     def _build_camera(self) -> None:
         """The camera renderer for this road (kept across episodes while nothing changes)."""
@@ -488,6 +505,22 @@ class DTHighwayEnv(HighwayEnv):
             self.twin.receive(self.uplink.sample(t_prev, now, states))
             self.twin.advance(now)
             self.twin_view = self.downlink.step(self.twin, EGO_ID, now)
+        if self._safety_on:
+            self._sample_safety()
+
+    def _sample_safety(self) -> None:
+        """The ego's leader, gap, TTC... at this simulation step (evaluation: from the simulator's state)."""
+        ego = self.vehicle
+        others = [v for v in self.road.vehicles if v is not ego]
+        lane_y = float(self.road.network.get_lane(ego.lane_index).position(float(ego.position[0]), 0.0)[1])
+        sample, cut_ins = self.safety.sample(round(self.sim_time_s, 9), 1.0 / self.config["simulation_frequency"], ego, lane_y,
+                                             others, [vehicle_id(v) for v in others])
+        self._safety_samples.append(sample.to_dict())
+        by_id = {vehicle_id(v): v for v in others} if cut_ins else {}
+        for c in cut_ins:
+            # the cutting driver's true type is for evaluation (logs, report) only
+            self._cut_ins.append({"t_s": c.t_s, "vehicle_id": c.vehicle_id, "gap_m": c.gap_m,
+                                  "driver_type": driver_type(by_id[c.vehicle_id])})
 
     # ------------------------------------------------------------------ info
     def _info(self, obs: Any, action: Any = None) -> dict:
@@ -526,6 +559,9 @@ class DTHighwayEnv(HighwayEnv):
         if self.fusion is not None:
             self.adas = self._run_fusion()
             info["adas"] = self.adas
+        # safety samples of every simulation step since the last info (evaluation)
+        info["safety"] = {"samples": self._safety_samples, "cut_ins": self._cut_ins}
+        self._safety_samples, self._cut_ins = [], []
         self._events = []
         return info
 

@@ -1,0 +1,106 @@
+"""How a driver controls the ego: a continuous acceleration and lane changes.
+
+highway-env's ``DiscreteMetaAction`` moves the ego between five target speeds, which is no way
+to study speed keeping. The ``"Driver"`` action type gives the driver the pedals instead:
+an acceleration command [m/s^2] (throttle > 0, brake < 0), held until the next decision,
+and a lane-change request (-1 left, 0 keep, +1 right) that highway-env's lateral controller
+carries out (lane keeping included). Scripted drivers, the keyboard and policies all drive
+through it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from highway_env.envs.common.action import ActionType
+from highway_env.vehicle.controller import ControlledVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+ACCEL_MIN_MPS2 = -8.0
+"""Hardest braking a driver can command [m/s^2] (about 0.8 g, a full stop on dry asphalt)"""
+ACCEL_MAX_MPS2 = 3.0
+"""Strongest acceleration a driver can command [m/s^2]"""
+
+
+class DrivenVehicle(ControlledVehicle):
+    """The ego under a driver: commanded acceleration, lane changes, lane keeping.
+
+    The acceleration command is held between decisions; speed never goes below 0.
+    """
+
+    MIN_SPEED = 0.0  # [m/s] no reversing on a highway
+
+    def __init__(self, road: Any, position: Any, heading: float = 0, speed: float = 0, target_lane_index: Any = None,
+                 target_speed: float | None = None, route: Any = None) -> None:
+        super().__init__(road, position, heading, speed, target_lane_index, target_speed, route)
+        self.accel_command_mps2 = 0.0
+        self.lane_change_requests = 0
+
+    def command(self, accel_mps2: float, lane_change: int = 0) -> None:
+        """Set the pedals and, optionally, ask for a lane change.
+
+        :param accel_mps2: acceleration [m/s^2], clipped to ``[ACCEL_MIN_MPS2, ACCEL_MAX_MPS2]``
+        :param lane_change: -1 one lane left, +1 one lane right, 0 keep the lane
+        """
+        if not np.isfinite(accel_mps2):
+            raise ValueError(f"the acceleration command must be a finite number [m/s^2] (got {accel_mps2})")
+        self.accel_command_mps2 = float(np.clip(accel_mps2, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2))
+        if lane_change:
+            _from, _to, _id = self.target_lane_index
+            n_lanes = len(self.road.network.graph[_from][_to])
+            target = (_from, _to, int(np.clip(_id + int(np.sign(lane_change)), 0, n_lanes - 1)))
+            if target != self.target_lane_index and self.road.network.get_lane(target).is_reachable_from(self.position):
+                self.target_lane_index = target
+                self.lane_change_requests += 1
+
+    def act(self, action: Any = None) -> None:
+        """Lane keeping (or changing) by the steering controller, the commanded acceleration
+        on the pedals (called by highway-env at every simulation step)."""
+        if isinstance(action, dict):
+            self.command(action.get("acceleration", self.accel_command_mps2), action.get("lane_change", 0))
+        self.follow_road()
+        steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
+                                 self.MAX_STEERING_ANGLE))
+        accel = self.accel_command_mps2
+        if self.speed <= 0.0:
+            accel = max(accel, 0.0)
+        Vehicle.act(self, {"steering": steering, "acceleration": accel})
+
+
+class DriverAction(ActionType):
+    """Action ``[acceleration, lane]``: acceleration [m/s^2] in ``[accel_min, accel_max]``
+    and a lane request in ``[-1, 1]`` (<= -0.5: one lane left, >= 0.5: one lane right).
+
+    :param env: the env
+    :param accel_min_mps2: hardest braking [m/s^2]
+    :param accel_max_mps2: strongest acceleration [m/s^2]
+    """
+
+    def __init__(self, env: Any, accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
+                 **kwargs: Any) -> None:
+        if kwargs:
+            raise ValueError(f"the Driver action takes accel_min_mps2 and accel_max_mps2 only (got {sorted(kwargs)})")
+        if not accel_min_mps2 < 0 < accel_max_mps2:
+            raise ValueError(f"the Driver action needs accel_min_mps2 < 0 < accel_max_mps2 "
+                             f"(got {accel_min_mps2}, {accel_max_mps2})")
+        super().__init__(env)
+        self.accel_min_mps2 = float(accel_min_mps2)
+        self.accel_max_mps2 = float(accel_max_mps2)
+
+    def space(self) -> spaces.Box:
+        return spaces.Box(np.array([self.accel_min_mps2, -1.0], dtype=np.float32),
+                          np.array([self.accel_max_mps2, 1.0], dtype=np.float32), dtype=np.float32)
+
+    @property
+    def vehicle_class(self) -> type:
+        return DrivenVehicle
+
+    def act(self, action: Any) -> None:
+        a = np.asarray(action, dtype=float).reshape(-1)
+        if a.shape != (2,) or not np.isfinite(a).all():
+            raise ValueError(f"a Driver action is [acceleration m/s^2, lane -1..1] (got {action!r})")
+        lane = -1 if a[1] <= -0.5 else (1 if a[1] >= 0.5 else 0)
+        self.controlled_vehicle.command(float(np.clip(a[0], self.accel_min_mps2, self.accel_max_mps2)), lane)
+        self.last_action = a

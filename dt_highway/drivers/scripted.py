@@ -1,0 +1,388 @@
+"""Scripted drivers of the ego: plain IDM, a human-like driver, and a random one.
+
+All drive through the ``"Driver"`` action (:mod:`dt_highway.drivers.control`): one
+decision per policy step, ``[acceleration m/s^2, lane request]``.
+
+What a driver perceives: the vehicles around it as a person in the driver's seat sees them
+(positions and speeds of the nearest vehicle ahead and behind in its lane and the lanes
+beside it; never their driver type), and, in the ADAS condition, the overlay: the boxes the
+fusion marked "aggressive driver" on the camera image. A person knows which car a marker
+sits on by looking at it, so the human-like driver takes the car whose visible outline in
+the image best matches the marker's box (IoU >= 0.3): when the fusion put the label on the
+wrong car, the driver is wary of the wrong car, and a missing marker warns of nothing.
+
+The human-like driver (parameters in ``agents/human.toml``):
+
+* car following: the Intelligent Driver Model (Treiber, Hennecke & Helbing 2000, Phys. Rev.
+  E 62, 1805; their highway values ``T = 1.6 s``, ``s0 = 2 m``, ``a = 0.73 m/s^2``,
+  ``b = 1.67 m/s^2``, ``delta = 4``), desired speed from the file;
+* human limits after the Human Driver Model (Treiber, Kesting & Helbing 2006, Physica A 360,
+  71): a reaction time ``T'`` (it acts on what it saw ``T'`` ago, anticipating the gap
+  over ``T'`` at the closing speed it saw), and estimation errors that wander slowly
+  (Wiener-like, correlation time 20 s): relative distance error ``V_s = 0.1``, inverse-TTC
+  error ``r_c = 0.01 1/s``;
+* lane changes: MOBIL (Kesting, Treiber & Helbing 2007, Transp. Res. Rec. 1999, 86) with
+  politeness 0.2, threshold 0.2 m/s^2, safe braking 4 m/s^2, and at most one lane change per
+  ``min_lane_change_interval_s``;
+* in the ADAS condition, while a marked car is ahead in its lane or beside it (in a lane
+  next to it, from ``alert_behind_m`` behind to ``alert_ahead_m`` ahead) and for
+  ``alert_hold_s`` after: it keeps a longer time gap (``T x alert_headway_factor``), lowers
+  its desired speed (``x alert_speed_factor``), reacts faster (``T' x alert_reaction_factor``:
+  a warned driver is primed to brake), and keeps a comfortable gap behind a marked car in the
+  next lane as if it were already in front (it expects the cut-in). These four responses are
+  our assumptions about a warned driver, not fitted to the paper's results.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from dt_highway.drivers.control import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+
+
+@dataclass(frozen=True)
+class IDMParams:
+    """Intelligent Driver Model.
+
+    :param desired_speed_mps: ``v0`` [m/s]
+    :param time_headway_s: ``T`` [s]
+    :param min_gap_m: ``s0`` [m]
+    :param max_accel_mps2: ``a`` [m/s^2]
+    :param comfort_decel_mps2: ``b`` [m/s^2]
+    :param delta: acceleration exponent [-]
+    """
+
+    desired_speed_mps: float = 30.0
+    time_headway_s: float = 1.6
+    min_gap_m: float = 2.0
+    max_accel_mps2: float = 0.73
+    comfort_decel_mps2: float = 1.67
+    delta: float = 4.0
+
+
+def idm_accel(speed_mps: float, gap_m: float, closing_mps: float, p: IDMParams,
+              desired_speed_mps: float | None = None, time_headway_s: float | None = None) -> float:
+    """IDM acceleration [m/s^2]: ``a [1 - (v/v0)^delta - (s*/s)^2]``, ``s* = s0 + vT + v dv / (2 sqrt(ab))``.
+
+    :param speed_mps: own speed ``v`` [m/s]
+    :param gap_m: gap to the leader ``s`` [m] (inf: free road)
+    :param closing_mps: ``dv = v - v_leader`` [m/s]
+    :param p: parameters
+    :param desired_speed_mps: overrides ``v0``
+    :param time_headway_s: overrides ``T``
+    """
+    v0 = p.desired_speed_mps if desired_speed_mps is None else desired_speed_mps
+    t = p.time_headway_s if time_headway_s is None else time_headway_s
+    free = 1.0 - (max(speed_mps, 0.0) / v0) ** p.delta
+    if not math.isfinite(gap_m):
+        return p.max_accel_mps2 * free
+    s_star = p.min_gap_m + max(0.0, speed_mps * t + speed_mps * closing_mps / (2.0 * math.sqrt(p.max_accel_mps2 * p.comfort_decel_mps2)))
+    return p.max_accel_mps2 * (free - (s_star / max(gap_m, 0.1)) ** 2)
+
+
+@dataclass(frozen=True)
+class Seen:
+    """A neighbour as the driver sees it: ``gap_m`` bumper to bumper (inf: nobody), its speed."""
+
+    vehicle_id: int = -1
+    gap_m: float = math.inf
+    speed_mps: float = 0.0
+
+
+@dataclass(frozen=True)
+class Surroundings:
+    """What the driver sees around it at one moment.
+
+    :param t_s: time [s]
+    :param speed_mps: own speed [m/s]
+    :param lane: own lane index
+    :param n_lanes: lanes on the road
+    :param ahead: nearest vehicle ahead per lane offset (-1 left, 0 own, +1 right)
+    :param behind: nearest vehicle behind per lane offset
+    :param x_of: longitudinal offset of every vehicle nearby [m] and its lane offset, by id
+    """
+
+    t_s: float
+    speed_mps: float
+    lane: int
+    n_lanes: int
+    ahead: dict[int, Seen]
+    behind: dict[int, Seen]
+    x_of: dict[int, tuple[float, int]]
+
+
+def look_around(env: Any, range_m: float = 150.0) -> Surroundings:
+    """The nearest vehicles ahead and behind in the ego's lane and the lanes beside it.
+
+    :param env: the dt-highway env (unwrapped)
+    :param range_m: how far the driver looks [m]
+    """
+    ego = env.vehicle
+    ex = float(ego.position[0])
+    lane = int(ego.lane_index[2])
+    n_lanes = len(env.road.network.graph[ego.lane_index[0]][ego.lane_index[1]])
+    ahead = {k: Seen() for k in (-1, 0, 1)}
+    behind = {k: Seen() for k in (-1, 0, 1)}
+    x_of: dict[int, tuple[float, int]] = {}
+    for v in env.road.vehicles:
+        if v is ego or not v.lane_index:
+            continue
+        dx = float(v.position[0]) - ex
+        if abs(dx) > range_m:
+            continue
+        off = int(v.lane_index[2]) - lane
+        vid = int(getattr(v, "dt_id", -1))
+        x_of[vid] = (dx, off)
+        if off not in ahead:
+            continue
+        gap = abs(dx) - (v.LENGTH + ego.LENGTH) / 2
+        if dx > 0 and gap < ahead[off].gap_m:
+            ahead[off] = Seen(vid, gap, float(v.speed))
+        elif dx <= 0 and gap < behind[off].gap_m:
+            behind[off] = Seen(vid, gap, float(v.speed))
+    return Surroundings(float(env.sim_time_s), float(ego.speed), lane, n_lanes, ahead, behind, x_of)
+
+
+def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set[int]:
+    """The cars the overlay marks, as a person looking at the screen sees them: for each
+    overlay box, the vehicle whose visible outline in the camera image fits it best.
+
+    :param env: the env (unwrapped), for the camera frame the overlay was drawn on
+    :param info: the step's info (``info["adas"]["overlay"]``)
+    :param min_iou: least overlap between marker and outline to see the marker on that car
+    :return: ids of the vehicles the driver takes for marked
+    """
+    adas = info.get("adas")
+    if not adas or not adas.get("overlay"):
+        return set()
+    from dt_highway.perception.detect import iou
+
+    seen = [(vid, t.visible_box) for vid, t in env.camera_frame().vehicles.items() if t.visible_box is not None]
+    if not seen:
+        return set()
+    outlines = np.array([b for _, b in seen], dtype=float)
+    marked = set()
+    for item in adas["overlay"]:
+        fit = iou(np.asarray(item["box"], dtype=float)[None], outlines)[0]
+        j = int(np.argmax(fit))
+        if fit[j] >= min_iou:
+            marked.add(int(seen[j][0]))
+    return marked
+
+
+class Driver:
+    """Base of the ego's drivers.
+
+    :param name: the driver's name (its file's stem)
+    """
+
+    needs_camera = False
+    """The driver looks at the overlay (ADAS condition)"""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def reset(self, env: Any, seed: int) -> None:
+        """Start a trial.
+
+        :param env: the env (unwrapped)
+        :param seed: seed of the driver's own randomness
+        """
+
+    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        """One decision: ``[acceleration m/s^2, lane request -1..1]``."""
+        raise NotImplementedError
+
+
+class IDMDriver(Driver):
+    """Plain IDM: perfect perception, no delay, stays in its lane, ignores the overlay.
+
+    :param name: driver name
+    :param idm: IDM parameters
+    """
+
+    def __init__(self, name: str, idm: IDMParams) -> None:
+        super().__init__(name)
+        self.idm = idm
+
+    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        s = look_around(env)
+        lead = s.ahead[0]
+        a = idm_accel(s.speed_mps, lead.gap_m, s.speed_mps - lead.speed_mps, self.idm)
+        return np.array([np.clip(a, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2), 0.0])
+
+
+class RandomDriver(Driver):
+    """Random pedals (uniform in ``[accel_min, accel_max]`` [m/s^2]) and the odd random lane change.
+
+    :param name: driver name
+    :param accel_min_mps2: least acceleration [m/s^2]
+    :param accel_max_mps2: largest acceleration [m/s^2]
+    :param lane_change_prob: chance of a lane request per decision [-]
+    """
+
+    def __init__(self, name: str, accel_min_mps2: float = -2.0, accel_max_mps2: float = 2.0,
+                 lane_change_prob: float = 0.02) -> None:
+        super().__init__(name)
+        self.accel_min_mps2, self.accel_max_mps2 = accel_min_mps2, accel_max_mps2
+        self.lane_change_prob = lane_change_prob
+        self.rng = np.random.default_rng(0)
+
+    def reset(self, env: Any, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        a = self.rng.uniform(self.accel_min_mps2, self.accel_max_mps2)
+        lane = float(self.rng.choice([-1.0, 1.0])) if self.rng.random() < self.lane_change_prob else 0.0
+        return np.array([a, lane])
+
+
+@dataclass(frozen=True)
+class HumanParams:
+    """The human-like driver's parameters (see the module docstring for their sources).
+
+    :param idm: car following
+    :param reaction_time_s: ``T'`` [s]
+    :param distance_error: relative distance estimation error ``V_s`` [-]
+    :param inverse_ttc_error_per_s: ``r_c`` [1/s]
+    :param error_correlation_s: correlation time of the estimation errors [s]
+    :param politeness: MOBIL ``p`` [-]
+    :param lane_change_threshold_mps2: MOBIL ``Delta a_th`` [m/s^2]
+    :param safe_decel_mps2: MOBIL ``b_safe`` [m/s^2]
+    :param min_lane_change_interval_s: least time between two lane changes [s]
+    :param alert_headway_factor: time gap multiplier while warned [-]
+    :param alert_speed_factor: desired speed multiplier while warned [-]
+    :param alert_reaction_factor: reaction time multiplier while warned [-]
+    :param alert_ahead_m: a marked car this far ahead (own or next lane) warns [m]
+    :param alert_behind_m: a marked car in the next lane this far behind warns [m]
+    :param alert_hold_s: the warning lasts this long after the marker is gone [s]
+    :param anticipate_cut_in: keep a gap behind a marked car in the next lane
+    """
+
+    idm: IDMParams = IDMParams(desired_speed_mps=27.0)
+    reaction_time_s: float = 1.0
+    distance_error: float = 0.1
+    inverse_ttc_error_per_s: float = 0.01
+    error_correlation_s: float = 20.0
+    politeness: float = 0.2
+    lane_change_threshold_mps2: float = 0.2
+    safe_decel_mps2: float = 4.0
+    min_lane_change_interval_s: float = 10.0
+    alert_headway_factor: float = 1.4
+    alert_speed_factor: float = 0.95
+    alert_reaction_factor: float = 0.7
+    alert_ahead_m: float = 60.0
+    alert_behind_m: float = 10.0
+    alert_hold_s: float = 3.0
+    anticipate_cut_in: bool = True
+
+
+class HumanDriver(Driver):
+    """A human-like driver: IDM with reaction time, estimation errors and MOBIL lane changes;
+    in the ADAS condition it responds to the overlay (module docstring).
+
+    :param name: driver name
+    :param params: its parameters
+    """
+
+    needs_camera = True
+
+    def __init__(self, name: str, params: HumanParams = HumanParams()) -> None:
+        super().__init__(name)
+        self.p = params
+        self.rng = np.random.default_rng(0)
+        self._memory: deque[Surroundings] = deque()
+        self._w = np.zeros(2)
+        self._last_change_s = -math.inf
+        self._alert_until_s = -math.inf
+        self._t_prev: float | None = None
+
+    def reset(self, env: Any, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+        self._memory.clear()
+        self._w = self.rng.normal(0.0, 1.0, 2)  # stationary start of the error processes
+        self._last_change_s = -math.inf
+        self._alert_until_s = -math.inf
+        self._t_prev = None
+
+    def _advance_errors(self, dt: float) -> None:
+        """Ornstein-Uhlenbeck step of the two unit-variance estimation errors."""
+        tau = self.p.error_correlation_s
+        decay = math.exp(-dt / tau)
+        self._w = self._w * decay + math.sqrt(1.0 - decay * decay) * self.rng.normal(0.0, 1.0, 2)
+
+    def _estimate(self, seen: Seen, delay_s: float, closing_mps: float) -> tuple[float, float]:
+        """A gap and closing speed as the driver estimates them now from what it saw ``delay_s`` ago."""
+        if not math.isfinite(seen.gap_m):
+            return math.inf, 0.0
+        gap = seen.gap_m * math.exp(self.p.distance_error * self._w[0])
+        closing = closing_mps - seen.gap_m * self.p.inverse_ttc_error_per_s * self._w[1]
+        return max(gap - delay_s * closing, 0.1), closing  # anticipation over the reaction time
+
+    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+        p = self.p
+        now = look_around(env)
+        dt = 0.0 if self._t_prev is None else now.t_s - self._t_prev
+        self._t_prev = now.t_s
+        self._advance_errors(dt)
+        self._memory.append(now)
+        marked = marked_vehicles(env, info)
+        near = [vid for vid in marked if vid in now.x_of and (
+            (now.x_of[vid][1] == 0 and 0 < now.x_of[vid][0] <= p.alert_ahead_m)
+            or (abs(now.x_of[vid][1]) == 1 and -p.alert_behind_m <= now.x_of[vid][0] <= p.alert_ahead_m))]
+        if near:
+            self._alert_until_s = now.t_s + p.alert_hold_s
+        alert = now.t_s <= self._alert_until_s
+        delay = p.reaction_time_s * (p.alert_reaction_factor if alert else 1.0)
+        while len(self._memory) > 1 and self._memory[1].t_s <= now.t_s - delay + 1e-9:
+            self._memory.popleft()
+        seen = self._memory[0]  # what it saw a reaction time ago
+        age = now.t_s - seen.t_s
+        v = seen.speed_mps
+        v0 = p.idm.desired_speed_mps * (p.alert_speed_factor if alert else 1.0)
+        t_gap = p.idm.time_headway_s * (p.alert_headway_factor if alert else 1.0)
+        lead = seen.ahead[0]
+        gap, closing = self._estimate(lead, age, v - lead.speed_mps)
+        accel = idm_accel(v, gap, closing, p.idm, v0, t_gap)
+        if alert and p.anticipate_cut_in:
+            for off in (-1, 1):
+                other = seen.ahead[off]
+                if other.vehicle_id in marked and other.gap_m <= p.alert_ahead_m:
+                    g, c = self._estimate(other, age, v - other.speed_mps)
+                    shadow = idm_accel(v, g, c, p.idm, v0, t_gap)
+                    accel = min(accel, max(shadow, -p.idm.comfort_decel_mps2))
+        lane = self._lane_change(seen, accel, v, v0, t_gap, age) if now.t_s - self._last_change_s >= p.min_lane_change_interval_s else 0
+        if lane:
+            self._last_change_s = now.t_s
+        return np.array([np.clip(accel, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2), float(lane)])
+
+    def _lane_change(self, seen: Surroundings, accel_now: float, v: float, v0: float, t_gap: float, age: float) -> int:
+        """MOBIL: the side lane whose incentive beats the threshold, if safe for its new follower."""
+        p = self.p
+        best, best_gain = 0, p.lane_change_threshold_mps2
+        for off in (-1, 1):
+            if not 0 <= seen.lane + off < seen.n_lanes:
+                continue
+            lead, follow = seen.ahead[off], seen.behind[off]
+            if lead.gap_m < 2.0 or follow.gap_m < 2.0:
+                continue
+            g, c = self._estimate(lead, age, v - lead.speed_mps)
+            a_new = idm_accel(v, g, c, p.idm, v0, t_gap)
+            if math.isfinite(follow.gap_m):
+                # the new follower's braking, behind us instead of behind its old leader
+                a_f_new = idm_accel(follow.speed_mps, follow.gap_m, follow.speed_mps - v, p.idm)
+                a_f_old = idm_accel(follow.speed_mps, follow.gap_m + 5.0 + (lead.gap_m if math.isfinite(lead.gap_m) else math.inf),
+                                    follow.speed_mps - lead.speed_mps, p.idm)
+            else:
+                a_f_new = a_f_old = 0.0
+            if a_f_new < -p.safe_decel_mps2:
+                continue
+            gain = a_new - accel_now + p.politeness * (a_f_new - a_f_old)
+            if gain > best_gain:
+                best, best_gain = off, gain
+        return best

@@ -1,0 +1,255 @@
+"""The study runner: a driver in the baseline and ADAS conditions, paired trial by trial.
+
+Paired design: trial ``i`` of every condition starts from the same traffic seed (``seed + i``)
+and the driver's own randomness from the same seed, so the conditions differ only in what
+the driver is shown. In the ``baseline`` condition the camera and fusion are off (nothing
+is shown); in ``adas`` they run and the driver sees the overlay.
+
+Trials run in a process pool (``workers``), each writing its own crash-safe log directory
+(:mod:`dt_highway.trial_log`) under ``<out>/trials/<condition>-<i>``; a finished trial is
+skipped when the study is run again (resume), and a trial that fails is reported and marked
+aborted without stopping the others.
+"""
+
+from __future__ import annotations
+
+import traceback
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+from dt_highway.config import ConfigError, load_config
+from dt_highway.jsonio import dump_json
+
+CONDITIONS = ("baseline", "adas")
+REPO = Path(__file__).resolve().parents[1]
+
+
+def find_file(path: str, folder: str) -> str:
+    """A driver or scenario path as given, or, when it does not exist here, the same
+    name under the project's own ``agents/`` or ``envs/`` (a checkout's)."""
+    p = Path(path)
+    if p.exists() or p.is_absolute():
+        return str(p)
+    alt = REPO / folder / p.name
+    return str(alt) if alt.exists() else str(p)
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """One trial of a study.
+
+    :param directory: where its log goes
+    :param driver: driver file (``agents/<name>.toml``)
+    :param condition: ``baseline`` or ``adas``
+    :param index: trial number within the condition (the pair it belongs to)
+    :param seed: traffic and driver seed
+    :param scenario: scenario file or ``None``
+    :param overrides: ``--set`` strings
+    :param participant: participant id (keyboard trials)
+    """
+
+    directory: str
+    driver: str
+    condition: str
+    index: int
+    seed: int
+    scenario: str | None = None
+    overrides: tuple[str, ...] = ()
+    participant: str | None = None
+
+
+def condition_config(condition: str) -> dict[str, Any]:
+    """What a condition changes in the configuration."""
+    if condition not in CONDITIONS:
+        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
+    on = condition == "adas"
+    return {"highway": {"action": {"type": "Driver"}}, "camera": {"enabled": on}, "fusion": {"enabled": on}}
+
+
+def run_trial(spec: TrialSpec) -> dict[str, Any]:
+    """Run one trial and write its log.
+
+    :return: ``status`` (``completed``, ``skipped`` or ``failed``), the directory, the
+        error (when failed) and the trial's metrics (when it has a log)
+    """
+    import gymnasium as gym
+    import numpy as np
+
+    from dt_highway.drivers import load_driver
+    from dt_highway.trial_log import TrialWriter, load_trial
+
+    out = Path(spec.directory)
+    if (out / "meta.json").exists():
+        try:
+            done = load_trial(out)
+            if done.meta.get("status") == "completed":
+                return {"status": "skipped", "directory": str(out), "metrics": _metrics_of(done)}
+        except (OSError, ValueError):
+            pass
+    try:
+        cfg = load_config(spec.scenario, list(spec.overrides), condition_config(spec.condition))
+        driver = load_driver(spec.driver)
+    except ConfigError as err:
+        return {"status": "failed", "directory": str(out), "error": str(err)}
+    meta = {"driver": driver.name, "driver_file": spec.driver, "participant": spec.participant,
+            "condition": spec.condition, "pair": spec.index, "seed": spec.seed, "scenario": spec.scenario,
+            "overrides": list(spec.overrides), "config": cfg.to_dict(),
+            "simulation_frequency_hz": cfg.highway.simulation_frequency}
+    try:
+        env = gym.make("dt-highway-v0", config=cfg.to_dict())
+        u = env.unwrapped
+        with TrialWriter(out, meta) as log:
+            obs, info = env.reset(seed=spec.seed)
+            driver.reset(u, spec.seed)
+            action = np.zeros(2)
+            shown: dict[int, str] = {}
+            lane, crashed = None, False
+            end = "time limit"
+            while True:
+                overlay = (info.get("adas") or {}).get("overlay", [])
+                now = {int(o["vehicle_id"]): o["label"] for o in overlay}
+                t = float(info["time_s"])
+                for vid in now.keys() - shown.keys():
+                    log.event("overlay_shown", t, vehicle_id=vid, label=now[vid])
+                for vid in shown.keys() - now.keys():
+                    log.event("overlay_hidden", t, vehicle_id=vid)
+                shown = now
+                for c in info["safety"]["cut_ins"]:
+                    log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
+                              gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
+                for s in info["safety"]["samples"]:
+                    if lane is not None and s["lane"] != lane:
+                        log.event("lane_change", s["t_s"], from_lane=lane, to_lane=s["lane"])
+                    if s["crashed"] and not crashed:
+                        log.event("collision", s["t_s"], leader_id=s["leader_id"])
+                    lane, crashed = s["lane"], bool(s["crashed"])
+                    log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": "",
+                              "overlay_ids": ";".join(str(v) for v in sorted(now)),
+                              "overlay_labels": ";".join(now[v] for v in sorted(now))})
+                if info.get("_done"):
+                    break
+                action = np.asarray(driver.act(u, obs, info), dtype=float)
+                obs, _, terminated, truncated, info = env.step(action)
+                if terminated or truncated:
+                    end = "collision" if u.vehicle.crashed else ("time limit" if truncated else "terminated")
+                    info["_done"] = True
+            log.meta["end_reason"] = end
+        env.close()
+    except Exception as err:  # noqa: BLE001 - one failed trial must not sink the study
+        return {"status": "failed", "directory": str(out), "error": f"{type(err).__name__}: {err}",
+                "traceback": traceback.format_exc()}
+    trial = load_trial(out)
+    return {"status": "completed", "directory": str(out), "metrics": _metrics_of(trial)}
+
+
+def _metrics_of(trial: Any) -> dict[str, Any]:
+    from dt_highway.safety import trial_metrics
+
+    dt = 1.0 / float(trial.meta.get("simulation_frequency_hz", 15))
+    cut_ins = [e for e in trial.events if e.get("kind") == "cut_in"]
+    return trial_metrics(trial.steps, dt, cut_ins)
+
+
+@dataclass
+class StudyResult:
+    """What a study run did.
+
+    :param directory: the study directory
+    :param completed: trials run now
+    :param skipped: trials already done before (resume)
+    :param failed: trials that failed, with their errors
+    """
+
+    directory: str
+    completed: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[dict[str, str]] = field(default_factory=list)
+
+
+def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, seed: int,
+         scenario: str | None = None, overrides: Sequence[str] = ()) -> list[TrialSpec]:
+    """The trials of a paired study, pair by pair."""
+    for c in conditions:
+        condition_config(c)
+    if trials < 1:
+        raise ConfigError(f"--trials must be >= 1 (got {trials})")
+    return [TrialSpec(str(Path(out) / "trials" / f"{c}-{i:03d}"), driver, c, i, seed + i, scenario, tuple(overrides))
+            for i in range(trials) for c in conditions]
+
+
+def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
+              progress: Callable[[dict[str, Any]], None] | None = None, backend: str = "process",
+              ray_address: str | None = None) -> StudyResult:
+    """Run the trials (in a process pool, or as Ray tasks), skipping those already completed.
+
+    :param specs: the trials (:func:`plan`)
+    :param out: the study directory (``study.json`` is written there)
+    :param workers: parallel trials [-]
+    :param progress: called with each trial's result as it finishes
+    :param backend: ``process`` (default) or ``ray``
+    :param ray_address: an existing Ray cluster's address (``ray`` backend)
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "study.json").write_text(dump_json({"trials": [asdict(s) for s in specs]}) + "\n")
+    result = StudyResult(str(out))
+
+    def record(r: dict[str, Any]) -> None:
+        if r["status"] == "completed":
+            result.completed.append(r["directory"])
+        elif r["status"] == "skipped":
+            result.skipped.append(r["directory"])
+        else:
+            result.failed.append({"directory": r["directory"], "error": r.get("error", "?")})
+        if progress is not None:
+            progress(r)
+
+    if backend == "ray":
+        for r in _run_ray(specs, ray_address):
+            record(r)
+        return result
+    if backend != "process":
+        raise ConfigError(f"unknown backend {backend!r} (allowed: process, ray)")
+    if workers <= 1:
+        for s in specs:
+            record(run_trial(s))
+        return result
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        futures: dict[Future, TrialSpec] = {pool.submit(run_trial, s): s for s in specs}
+        for fut in as_completed(futures):
+            try:
+                record(fut.result())
+            except Exception as err:  # noqa: BLE001 - a worker that died
+                record({"status": "failed", "directory": futures[fut].directory, "error": f"{type(err).__name__}: {err}"})
+    return result
+
+
+def _run_ray(specs: Sequence[TrialSpec], address: str | None) -> list[dict[str, Any]]:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(run_trial)
+        refs = [task.remote(s) for s in specs]
+        out = []
+        pending = list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                try:
+                    out.append(ray.get(ref))
+                except Exception as err:  # noqa: BLE001
+                    out.append({"status": "failed", "directory": "?", "error": str(err)})
+        return out
+    finally:
+        if started:
+            ray.shutdown()
+

@@ -1,0 +1,75 @@
+"""The study runner, trial logs of real trials, the drivers and the report, on tiny studies."""
+
+import json
+
+import pytest
+
+from dt_highway.cli import main
+from dt_highway.config import ConfigError
+from dt_highway.drivers import HumanDriver, HumanParams, IDMDriver, load_driver, make_driver
+from dt_highway.study import plan, run_study
+from dt_highway.trial_log import load_trial
+
+SHORT = ["highway.duration=4", "highway.vehicles_count=12", "twin.preroll_s=5"]
+
+
+def test_driver_files_load_and_bad_ones_are_refused(tmp_path):
+    human = load_driver("agents/human.toml")
+    assert isinstance(human, HumanDriver) and human.p == HumanParams()  # the file holds the defaults
+    assert isinstance(load_driver("agents/idm.toml"), IDMDriver)
+    with pytest.raises(ConfigError, match="unknown key 'reaction_time'"):
+        make_driver({"kind": "human", "reaction_time": 1.0})
+    with pytest.raises(ConfigError, match="kind"):
+        make_driver({"kind": "robot"})
+    with pytest.raises(ConfigError, match="finite number >= 0"):
+        make_driver({"kind": "human", "reaction_time_s": -1})
+    with pytest.raises(ConfigError, match="not found"):
+        load_driver(tmp_path / "nope.toml")
+
+
+def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_path):
+    out = tmp_path / "study"
+    specs = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 7, "envs/highway-trial.toml", SHORT)
+    bad = plan(out, str(tmp_path / "missing.toml"), ["baseline"], 1, 7)[0]
+    bad = type(bad)(**{**bad.__dict__, "directory": str(out / "trials" / "broken-000")})
+    result = run_study([*specs, bad], out, workers=1)
+    assert sorted(result.completed) == sorted(s.directory for s in specs)
+    assert len(result.failed) == 1 and "not found" in result.failed[0]["error"]
+    for s in specs:
+        trial = load_trial(s.directory)
+        assert trial.meta["status"] == "completed" and trial.meta["seed"] == 7 and trial.meta["condition"] == s.condition
+        assert abs(trial.steps["t_s"].max() - 4.0) < 0.1 and len(trial.steps) == 61  # 15 Hz, t = 0..4 s
+    again = run_study(specs, out, workers=1)
+    assert len(again.skipped) == 2 and not again.completed
+
+
+def test_study_and_report_commands(tmp_path, capsys):
+    out = tmp_path / "s"
+    args = ["study", "--driver", "agents/idm.toml", "--trials", "2", "--workers", "1", "--out", str(out), "--quiet",
+            "--scenario", "envs/highway-trial.toml", *sum((["--set", s] for s in SHORT), [])]
+    assert main(args) == 0
+    assert main(["report", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["conditions"]) == {"baseline", "adas"}
+    assert summary["conditions"]["adas"]["n"] == 2
+    assert summary["paired_tests"]["speed_variance_kmh2"]["n_pairs"] == 2
+    metrics = (out / "metrics.csv").read_text().splitlines()
+    assert len(metrics) == 5 and "speed_variance_kmh2" in metrics[0]
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html and "16.6" in html
+    assert main(["report", str(tmp_path / "empty")]) == 2
+    assert main(["study", "--driver", "agents/idm.toml", "--out", str(out), "--conditions", "baseline,night"]) == 2
+    assert "unknown condition 'night'" in capsys.readouterr().err
+
+
+def test_participant_strings_are_escaped_in_the_html(tmp_path):
+    out = tmp_path / "s"
+    specs = plan(out, "agents/idm.toml", ["baseline"], 1, 0, "envs/highway-trial.toml", SHORT)
+    run_study(specs, out, workers=1)
+    meta_path = out / "trials" / "baseline-000" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["driver"] = "<script>alert(1)</script>"
+    meta_path.write_text(json.dumps(meta))
+    assert main(["report", str(out)]) == 0
+    html = (out / "report.html").read_text()
+    assert "<script>alert(1)</script>" not in html and "&lt;script&gt;" in html
