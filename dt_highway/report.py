@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway.jsonio import dump_json
-from dt_highway.safety import CUT_IN_WINDOW_S, MS_TO_KMH, TTC_CAP_S, TTC_STAR_S, trial_metrics
+from dt_highway.safety import CUT_IN_WINDOW_S, MS_TO_KMH, TTC_CAP_S, TTC_STAR_S
 from dt_highway.trial_log import load_trial
 
 SUMMARY_METRICS = ("speed_variance_kmh2", "ttc_mean_s", "ttc_min_s", "tet_s", "tit_s2", "speed_mean_kmh",
@@ -58,13 +58,12 @@ def collect(study_dir: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     for d in dirs:
         trial = load_trial(d)
         meta = trial.meta
-        dt = 1.0 / float(meta.get("simulation_frequency_hz", 15))
-        cuts = [e for e in trial.events if e.get("kind") == "cut_in"]
+        cuts = trial.cut_ins
         row = {"trial": d.name, "condition": meta.get("condition"), "pair": meta.get("pair"),
                "participant": meta.get("participant"), "driver": meta.get("driver"), "seed": meta.get("seed"),
                "status": meta.get("status"), "end_reason": meta.get("end_reason")}
         if len(trial.steps):
-            row.update(trial_metrics(trial.steps, dt, cuts))
+            row.update(trial.metrics())
         rows.append(row)
         if meta.get("status") != "completed" or not len(trial.steps):
             continue

@@ -87,7 +87,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         try:
             done = load_trial(out)
             if done.meta.get("status") == "completed":
-                return {"status": "skipped", "directory": str(out), "metrics": _metrics_of(done)}
+                return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
         except (OSError, ValueError):
             pass
     try:
@@ -108,7 +108,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
             action = np.zeros(2)
             shown: dict[int, str] = {}
             lane, crashed = None, False
-            end = "time limit"
+            end: str | None = None  # set when the episode ends; its last info is logged first
             while True:
                 overlay = (info.get("adas") or {}).get("overlay", [])
                 now = {int(o["vehicle_id"]): o["label"] for o in overlay}
@@ -130,28 +130,19 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
                     log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": "",
                               "overlay_ids": ";".join(str(v) for v in sorted(now)),
                               "overlay_labels": ";".join(now[v] for v in sorted(now))})
-                if info.get("_done"):
+                if end is not None:
                     break
                 action = np.asarray(driver.act(u, obs, info), dtype=float)
                 obs, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
                     end = "collision" if u.vehicle.crashed else ("time limit" if truncated else "terminated")
-                    info["_done"] = True
             log.meta["end_reason"] = end
         env.close()
     except Exception as err:  # noqa: BLE001 - one failed trial must not sink the study
         return {"status": "failed", "directory": str(out), "error": f"{type(err).__name__}: {err}",
                 "traceback": traceback.format_exc()}
     trial = load_trial(out)
-    return {"status": "completed", "directory": str(out), "metrics": _metrics_of(trial)}
-
-
-def _metrics_of(trial: Any) -> dict[str, Any]:
-    from dt_highway.safety import trial_metrics
-
-    dt = 1.0 / float(trial.meta.get("simulation_frequency_hz", 15))
-    cut_ins = [e for e in trial.events if e.get("kind") == "cut_in"]
-    return trial_metrics(trial.steps, dt, cut_ins)
+    return {"status": "completed", "directory": str(out), "metrics": trial.metrics()}
 
 
 @dataclass

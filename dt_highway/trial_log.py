@@ -121,8 +121,7 @@ class TrialWriter:
         if exc_type is not None:
             self.close("aborted", f"{exc_type.__name__}: {exc}")
         else:
-            self.close(self.meta.get("status") if self.meta.get("status") != "running" else "completed",
-                       self.meta.get("end_reason") or "")
+            self.close("completed", self.meta.get("end_reason") or "")
 
 
 def write_parquet(directory: str | Path) -> Path | None:
@@ -154,6 +153,22 @@ class Trial:
     events: list[dict[str, Any]]
     meta: dict[str, Any]
     path: Path
+
+    @property
+    def dt_s(self) -> float:
+        """The simulation step [s] (one row of ``steps``)."""
+        return 1.0 / float(self.meta.get("simulation_frequency_hz", 15))
+
+    @property
+    def cut_ins(self) -> list[dict[str, Any]]:
+        """The cut-in events."""
+        return [e for e in self.events if e.get("kind") == "cut_in"]
+
+    def metrics(self) -> dict[str, Any]:
+        """Every safety metric of the trial (:func:`dt_highway.safety.trial_metrics`)."""
+        from dt_highway.safety import trial_metrics
+
+        return trial_metrics(self.steps, self.dt_s, self.cut_ins)
 
 
 def _complete_lines(path: Path) -> str:
