@@ -36,8 +36,10 @@ def _seed(text: str) -> int:
     return value
 
 
-def _add_config_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", metavar="FILE", help="scenario TOML file (e.g. envs/highway-trial.toml)")
+def _add_config_args(p: argparse.ArgumentParser, default_scenario: str | None = None) -> None:
+    p.add_argument("--scenario", metavar="FILE",
+                   help=f"scenario TOML file (default {default_scenario})" if default_scenario
+                   else "scenario TOML file (e.g. envs/highway-trial.toml)")
     p.add_argument(
         "--set", dest="overrides", metavar="KEY=VALUE", action="append", default=[],
         help="override one configuration value, e.g. --set twin.uplink.noise_sigma_m=3 (repeatable)",
@@ -116,7 +118,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- study / report
-QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0, "scenario": "envs/highway-trial.toml"}
+STUDY_SCENARIO = "envs/highway-trial.toml"
+"""The study's default scenario: the paper's trial highway (section IV-C)"""
+QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
 """The README's main job: a small paired study with the human-like driver"""
 
 
@@ -127,17 +131,22 @@ def cmd_study(args: argparse.Namespace) -> int:
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
-        scenario = find_file(args.scenario or QUICK["scenario"], "envs")
+        scenario = find_file(args.scenario or STUDY_SCENARIO, "envs")
         trials = args.trials or QUICK["trials"]
         overrides = [f"highway.duration={QUICK['duration_s']}", *args.overrides]
         out = args.out or "runs/quick-study"
     else:
         if not args.driver or not args.out:
             raise ConfigError("dt-highway study needs --driver FILE and --out DIR (or --quick)")
-        driver, scenario = find_file(args.driver, "agents"), args.scenario
+        driver, scenario = find_file(args.driver, "agents"), find_file(args.scenario or STUDY_SCENARIO, "envs")
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides)
+    specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides, parquet=args.parquet)
+    if args.parquet:
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise ConfigError("--parquet needs pyarrow: pip install 'dt-highway[parquet]'") from None
     # bad driver files and configurations fail here, once, rather than in every trial
     from dt_highway.drivers import load_driver
 
@@ -335,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_matching)
 
     p = sub.add_parser("study", help="a paired baseline/ADAS study of a driver (trial logs, then the report)")
-    _add_config_args(p)
+    _add_config_args(p, STUDY_SCENARIO)
     p.add_argument("--driver", help="driver file, e.g. agents/human.toml")
     p.add_argument("--conditions", default="baseline,adas", help="conditions (default baseline,adas)")
     p.add_argument("--trials", type=_positive(int, "--trials"), help="pairs of trials (default 10; --quick: 3)")
@@ -346,6 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ray-address", help="address of an existing Ray cluster")
     p.add_argument("--quick", action="store_true", help="a small study with the human-like driver, then its report")
     p.add_argument("--report", action="store_true", help="write the report when the study is done")
+    p.add_argument("--parquet", action="store_true",
+                   help="also write steps.parquet in each completed trial's directory (needs pyarrow)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_study)
 

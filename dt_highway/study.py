@@ -14,7 +14,7 @@ aborted without stopping the others.
 from __future__ import annotations
 
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
@@ -50,6 +50,7 @@ class TrialSpec:
     :param scenario: scenario file or ``None``
     :param overrides: ``--set`` strings
     :param participant: participant id (keyboard trials)
+    :param parquet: also write ``steps.parquet`` once the trial has completed
     """
 
     directory: str
@@ -60,6 +61,7 @@ class TrialSpec:
     scenario: str | None = None
     overrides: tuple[str, ...] = ()
     participant: str | None = None
+    parquet: bool = False
 
 
 def condition_config(condition: str) -> dict[str, Any]:
@@ -80,16 +82,22 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     import numpy as np
 
     from dt_highway.drivers import load_driver
-    from dt_highway.trial_log import TrialWriter, load_trial
+    from dt_highway.trial_log import TrialWriter, load_trial, write_parquet
 
     out = Path(spec.directory)
+    done = None
     if (out / "meta.json").exists():
         try:
             done = load_trial(out)
-            if done.meta.get("status") == "completed":
-                return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
-        except (OSError, ValueError):
-            pass
+        except (OSError, ValueError):  # an unreadable log: run the trial again
+            done = None
+    if done is not None and done.meta.get("status") == "completed":
+        if spec.parquet and not (out / "steps.parquet").exists():
+            try:
+                write_parquet(out)
+            except (ImportError, ValueError) as err:
+                return {"status": "failed", "directory": str(out), "error": str(err)}
+        return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
     try:
         cfg = load_config(spec.scenario, list(spec.overrides), condition_config(spec.condition))
         driver = load_driver(spec.driver)
@@ -142,6 +150,11 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         return {"status": "failed", "directory": str(out), "error": f"{type(err).__name__}: {err}",
                 "traceback": traceback.format_exc()}
     trial = load_trial(out)
+    if spec.parquet:
+        try:
+            write_parquet(out)
+        except (ImportError, ValueError) as err:  # the CSV log is complete: report, keep it
+            return {"status": "failed", "directory": str(out), "error": str(err)}
     return {"status": "completed", "directory": str(out), "metrics": trial.metrics()}
 
 
@@ -162,14 +175,14 @@ class StudyResult:
 
 
 def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, seed: int,
-         scenario: str | None = None, overrides: Sequence[str] = ()) -> list[TrialSpec]:
-    """The trials of a paired study, pair by pair."""
+         scenario: str | None = None, overrides: Sequence[str] = (), parquet: bool = False) -> list[TrialSpec]:
+    """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``)."""
     for c in conditions:
         condition_config(c)
     if trials < 1:
         raise ConfigError(f"--trials must be >= 1 (got {trials})")
-    return [TrialSpec(str(Path(out) / "trials" / f"{c}-{i:03d}"), driver, c, i, seed + i, scenario, tuple(overrides))
-            for i in range(trials) for c in conditions]
+    return [TrialSpec(str(Path(out) / "trials" / f"{c}-{i:03d}"), driver, c, i, seed + i, scenario, tuple(overrides),
+                      parquet=parquet) for i in range(trials) for c in conditions]
 
 
 def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
@@ -200,7 +213,7 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
             progress(r)
 
     if backend == "ray":
-        for r in _run_ray(specs, ray_address):
+        for r in _run_ray(specs, ray_address, workers):
             record(r)
         return result
     if backend != "process":
@@ -219,28 +232,37 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     return result
 
 
-def _run_ray(specs: Sequence[TrialSpec], address: str | None) -> list[dict[str, Any]]:
+def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> Iterator[dict[str, Any]]:
+    """Run the trials as Ray tasks (one CPU each), yielding each result as it finishes.
+
+    Without ``address`` a local Ray is started with ``workers`` CPUs and shut down after;
+    with one, the tasks go to that cluster (whose workers must have ``dt-highway``
+    installed and see the study directory, e.g. on a shared file system).
+    """
     try:
         import ray
     except ImportError:
         raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
     started = not ray.is_initialized()
     if started:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        try:
+            if address is None:
+                ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+            else:
+                ray.init(address=address, log_to_driver=False)
+        except (ConnectionError, RuntimeError, ValueError) as err:
+            raise ConfigError(f"cannot start or reach Ray at {address or 'a local instance'}: {err}") from None
     try:
-        task = ray.remote(run_trial)
-        refs = [task.remote(s) for s in specs]
-        out = []
-        pending = list(refs)
+        task = ray.remote(num_cpus=1, max_retries=0)(run_trial)
+        pending = {task.remote(s): s for s in specs}
         while pending:
-            done, pending = ray.wait(pending, num_returns=1)
+            done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
+                spec = pending.pop(ref)
                 try:
-                    out.append(ray.get(ref))
-                except Exception as err:  # noqa: BLE001
-                    out.append({"status": "failed", "directory": "?", "error": str(err)})
-        return out
+                    yield ray.get(ref)
+                except Exception as err:  # noqa: BLE001 - a task whose worker died
+                    yield {"status": "failed", "directory": spec.directory, "error": f"{type(err).__name__}: {err}"}
     finally:
         if started:
             ray.shutdown()
-

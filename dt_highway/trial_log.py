@@ -124,18 +124,27 @@ class TrialWriter:
             self.close("completed", self.meta.get("end_reason") or "")
 
 
-def write_parquet(directory: str | Path) -> Path | None:
-    """Convert a completed trial's ``steps.csv`` to ``steps.parquet`` (needs pyarrow).
+def write_parquet(directory: str | Path) -> Path:
+    """Write a completed trial's steps as ``steps.parquet`` beside ``steps.csv`` (needs pyarrow).
 
-    :return: the Parquet file, or ``None`` when pyarrow is not installed
+    The CSV stays the log of record; the Parquet copy is for fast loading of large studies.
+
+    :param directory: the trial's directory
+    :return: the Parquet file
+    :raises ImportError: if pyarrow is not installed
+    :raises ValueError: if the trial is not completed
     """
     try:
         import pyarrow  # noqa: F401
     except ImportError:
-        return None
+        raise ImportError("Parquet output needs pyarrow: pip install 'dt-highway[parquet]'") from None
     trial = load_trial(directory)
+    if trial.meta.get("status") != "completed":
+        raise ValueError(f"trial {trial.path} is {trial.meta.get('status')}: Parquet is written only for completed trials")
     out = Path(directory) / "steps.parquet"
-    trial.steps.to_parquet(out)
+    tmp = out.with_name(out.name + ".tmp")
+    trial.steps.to_parquet(tmp, index=False)
+    os.replace(tmp, out)
     return out
 
 

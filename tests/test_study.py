@@ -48,6 +48,12 @@ def test_study_and_report_commands(tmp_path, capsys):
     args = ["study", "--driver", "agents/idm.toml", "--trials", "2", "--workers", "1", "--out", str(out), "--quiet",
             "--scenario", "envs/highway-trial.toml", *sum((["--set", s] for s in SHORT), [])]
     assert main(args) == 0
+    pytest.importorskip("pyarrow", reason="the test extras install pyarrow")
+    import pandas as pd
+    assert not (out / "trials" / "adas-001" / "steps.parquet").exists()
+    assert main([*args, "--parquet"]) == 0  # resumed: every trial skipped, the Parquet copies added
+    trial = load_trial(out / "trials" / "adas-001")
+    pd.testing.assert_frame_equal(pd.read_parquet(trial.path / "steps.parquet"), trial.steps)
     assert main(["report", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["conditions"]) == {"baseline", "adas"}
@@ -73,3 +79,20 @@ def test_participant_strings_are_escaped_in_the_html(tmp_path):
     assert main(["report", str(out)]) == 0
     html = (out / "report.html").read_text()
     assert "<script>alert(1)</script>" not in html and "&lt;script&gt;" in html
+
+
+def test_the_ray_backend_runs_the_same_trials_on_a_local_ray(tmp_path):
+    pytest.importorskip("ray", reason="the test extras install ray; without it this backend cannot run")
+    out = tmp_path / "study"
+    specs = plan(out, "agents/idm.toml", ["baseline", "adas"], 1, 3, "envs/highway-trial.toml", SHORT)
+    bad = type(specs[0])(**{**specs[0].__dict__, "driver": str(tmp_path / "missing.toml"),
+                            "directory": str(out / "trials" / "broken-000")})
+    seen = []
+    result = run_study([*specs, bad], out, workers=2, progress=seen.append, backend="ray")
+    assert sorted(result.completed) == sorted(s.directory for s in specs) and len(seen) == 3
+    assert len(result.failed) == 1 and result.failed[0]["directory"] == bad.directory
+    assert "not found" in result.failed[0]["error"]
+    local = run_study(plan(tmp_path / "local", "agents/idm.toml", ["adas"], 1, 3, "envs/highway-trial.toml", SHORT),
+                      tmp_path / "local", workers=1)
+    ray_steps = load_trial(out / "trials" / "adas-000").steps
+    assert ray_steps.equals(load_trial(local.completed[0]).steps)  # same seed, same trial, wherever it ran
