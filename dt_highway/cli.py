@@ -12,6 +12,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -127,7 +128,7 @@ QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
 def cmd_study(args: argparse.Namespace) -> int:
     """A paired study of one driver in several conditions, then (with --quick) its report."""
     from dt_highway.report import write_report
-    from dt_highway.study import find_file, plan, run_study
+    from dt_highway.study import find_file, freeze_inputs, plan, run_study
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
@@ -141,17 +142,19 @@ def cmd_study(args: argparse.Namespace) -> int:
         driver, scenario = find_file(args.driver, "agents"), find_file(args.scenario or STUDY_SCENARIO, "envs")
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    # bad driver files and configurations fail here, once, rather than in every trial
+    from dt_highway.drivers import load_driver
+
+    load_driver(driver)
+    load_config(scenario, overrides)
     specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides, parquet=args.parquet)
     if args.parquet:
         try:
             import pyarrow  # noqa: F401
         except ImportError:
             raise ConfigError("--parquet needs pyarrow: pip install 'dt-highway[parquet]'") from None
-    # bad driver files and configurations fail here, once, rather than in every trial
-    from dt_highway.drivers import load_driver
-
-    load_driver(driver)
-    load_config(scenario, overrides)
+    driver, scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
+    specs = [replace(s, driver=driver, scenario=scenario) for s in specs]
     t0 = time.perf_counter()
     with _progress(len(specs), "study", args.quiet) as bar:
         bar.unit = "trial"

@@ -38,6 +38,36 @@ def find_file(path: str, folder: str) -> str:
     return str(alt) if alt.exists() else str(p)
 
 
+def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[str, str | None]:
+    """Copy the driver and scenario files into ``<out>/inputs/`` and return the copies' paths.
+
+    The trials read the copies, so that editing a file while a study runs cannot change it
+    half-way, and the study directory keeps a record of what it ran. Resuming a study with a
+    file that differs from its copy is refused.
+
+    :raises ConfigError: when a file is missing or differs from the study's copy
+    """
+    inputs = Path(out) / "inputs"
+    frozen: list[str | None] = []
+    for path in (driver, scenario):
+        if path is None:
+            frozen.append(None)
+            continue
+        src = Path(path)
+        if not src.is_file():
+            raise ConfigError(f"file not found: {src}")
+        copy = inputs / src.name
+        data = src.read_bytes()
+        if copy.exists() and copy.resolve() != src.resolve() and copy.read_bytes() != data:
+            raise ConfigError(f"{src} differs from the copy the study in {out} was started with ({copy}): "
+                              "use another --out, or restore the file")
+        if not copy.exists():
+            inputs.mkdir(parents=True, exist_ok=True)
+            copy.write_bytes(data)
+        frozen.append(str(copy))
+    return str(frozen[0]), frozen[1]
+
+
 @dataclass(frozen=True)
 class TrialSpec:
     """One trial of a study.
@@ -103,7 +133,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         driver = load_driver(spec.driver)
     except ConfigError as err:
         return {"status": "failed", "directory": str(out), "error": str(err)}
-    meta = {"driver": driver.name, "driver_file": spec.driver, "participant": spec.participant,
+    meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(), "participant": spec.participant,
             "condition": spec.condition, "pair": spec.index, "seed": spec.seed, "scenario": spec.scenario,
             "overrides": list(spec.overrides), "config": cfg.to_dict(),
             "simulation_frequency_hz": cfg.highway.simulation_frequency}

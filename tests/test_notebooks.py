@@ -24,3 +24,18 @@ def test_target_identification_notebook(tmp_path, monkeypatch):
     assert not [o for o in outputs if o.get("output_type") == "error"]
     text = "".join(o.get("text", "") for o in outputs)
     assert "6 frames" in text
+
+
+def test_safety_study_notebook(tmp_path, monkeypatch):
+    out = tmp_path / "study"
+    assert main(["study", "--driver", "agents/idm.toml", "--trials", "2", "--workers", "1", "--out", str(out), "--quiet",
+                 "--set", "highway.duration=4", "--set", "highway.vehicles_count=12", "--set", "twin.preroll_s=5"]) == 0
+    monkeypatch.setenv("STUDY_DIR", str(out))
+    monkeypatch.delenv("MPLBACKEND")  # the kernel's inline backend, so that the figures are outputs
+    nb = nbformat.read(NOTEBOOKS / "safety_study.ipynb", as_version=4)
+    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    assert not [o for o in outputs if o.get("output_type") == "error"]
+    text = "".join(o.get("text", "") for o in outputs)
+    assert "4 trials, 4 completed, conditions ['baseline', 'adas']" in text and "speed_variance_kmh2:" in text
+    assert sum(o.get("output_type") == "display_data" and "image/png" in o.get("data", {}) for o in outputs) == 3

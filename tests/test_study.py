@@ -7,7 +7,7 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
 from dt_highway.drivers import HumanDriver, HumanParams, IDMDriver, load_driver, make_driver
-from dt_highway.study import plan, run_study
+from dt_highway.study import freeze_inputs, plan, run_study
 from dt_highway.trial_log import load_trial
 
 SHORT = ["highway.duration=4", "highway.vehicles_count=12", "twin.preroll_s=5"]
@@ -96,3 +96,18 @@ def test_the_ray_backend_runs_the_same_trials_on_a_local_ray(tmp_path):
                       tmp_path / "local", workers=1)
     ray_steps = load_trial(out / "trials" / "adas-000").steps
     assert ray_steps.equals(load_trial(local.completed[0]).steps)  # same seed, same trial, wherever it ran
+
+
+def test_a_study_runs_on_copies_of_its_inputs_and_refuses_changed_ones(tmp_path):
+    driver = tmp_path / "mine.toml"
+    driver.write_text('kind = "idm"\n')
+    out = tmp_path / "study"
+    d, sc = freeze_inputs(out, str(driver), "envs/highway-trial.toml")
+    assert d == str(out / "inputs" / "mine.toml") and sc == str(out / "inputs" / "highway-trial.toml")
+    driver.write_text('kind = "idm"\n[idm]\ndesired_speed_mps = 20.0\n')  # edited while the study runs
+    assert load_driver(d).idm.desired_speed_mps == 30.0  # the trials still read the copy
+    with pytest.raises(ConfigError, match="differs from the copy"):
+        freeze_inputs(out, str(driver), "envs/highway-trial.toml")
+    assert freeze_inputs(out, d, sc) == (d, sc)  # the copies themselves are accepted
+    with pytest.raises(ConfigError, match="file not found"):
+        freeze_inputs(out, str(tmp_path / "nope.toml"), None)
