@@ -31,14 +31,14 @@ PAPER = {"speed_variance_kmh2": (16.6, 14.2), "ttc_mean_s": (1.2, 3.2)}
 DEFINITIONS = {
     "speed_variance_kmh2": "sample variance (N-1) of the ego's speed in km/h over the trial's simulation steps [(km/h)^2]",
     "ttc_mean_s": f"mean TTC over closing samples with TTC below {TTC_CAP_S:g} s [s]",
-    "ttc_min_s": "minimum TTC over the trial [s]",
+    "ttc_min_s": f"minimum TTC over the trial, capped at {TTC_CAP_S:g} s (never closer: {TTC_CAP_S:g}) [s]",
     "tet_s": f"time exposed TTC: time with 0 <= TTC <= {TTC_STAR_S:g} s [s] (Minderhoud & Bovy 2001)",
     "tit_s2": f"time integrated TTC: integral of ({TTC_STAR_S:g} s - TTC) over that time [s^2]",
     "speed_mean_kmh": "mean ego speed [km/h]",
     "headway_mean_s": "mean time headway gap / ego speed, with a leader [s]",
     "drac_max_mps2": "maximum deceleration rate to avoid the crash dv^2 / (2 gap) [m/s^2]",
     "hard_brakes": "onsets of ego deceleration >= 3 m/s^2 [-]",
-    "cut_in_ttc_min_s": "smallest of the cut-ins' minimum TTC to the cutting vehicle [s]",
+    "cut_in_ttc_min_s": f"smallest of the cut-ins' minimum TTC to the cutting vehicle, capped at {TTC_CAP_S:g} s [s]",
     "reaction_mean_s": "mean time from a cut-in to the ego's first deceleration >= 1 m/s^2 [s]",
     "ttc": "gap / closing speed, bumper to bumper to the vehicle ahead overlapping the ego's lane; infinite when not closing",
     "collisions": "onsets of the ego's crash [-]",
@@ -73,16 +73,16 @@ def collect(study_dir: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
         ttc_samples.setdefault(cond, []).append(ttc[(s["closing_mps"].to_numpy(float) > 0) & (ttc < TTC_CAP_S)])
         t = s["t_s"].to_numpy(float)
         v = s["speed_mps"].to_numpy(float) * MS_TO_KMH
-        shown_at = {}
-        for e in trial.events:
-            if e.get("kind") == "overlay_shown":
-                shown_at.setdefault(int(e["vehicle_id"]), []).append(float(e["t_s"]))
+        overlay = s["overlay_ids"].fillna("").astype(str).to_numpy()
         for c in cuts:
             t0 = float(c["t_s"])
             grid = np.arange(-2.0, CUT_IN_WINDOW_S + 1e-9, 0.5)
             trace = np.interp(t0 + grid, t, v, left=np.nan, right=np.nan)
             traces.append({"condition": cond, "grid": grid, "speed_kmh": trace - np.interp(t0, t, v)})
-            marked_before = any(t0 - CUT_IN_WINDOW_S <= ts <= t0 for ts in shown_at.get(int(c["vehicle_id"]), []))
+            # marked in time: on the overlay at some step of the window before the cut-in
+            before = overlay[(t >= t0 - CUT_IN_WINDOW_S) & (t <= t0)]
+            vid = str(int(c["vehicle_id"]))
+            marked_before = any(vid in ids.split(";") for ids in before if ids)
             cut_ins.append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_before})
     return pd.DataFrame(rows), {"traces": traces, "ttc": ttc_samples, "cut_ins": cut_ins}
 
@@ -148,6 +148,9 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
         cuts = [c for c in extra["cut_ins"] if c["condition"] == cond]
         entry["cut_ins"] = len(cuts)
         entry["cut_ins_marked_in_time"] = sum(c["marked_in_time"] for c in cuts)
+        rough = [c for c in cuts if c["driver_type"] == "aggressive"]
+        entry["cut_ins_by_aggressive"] = len(rough)
+        entry["cut_ins_by_aggressive_marked_in_time"] = sum(c["marked_in_time"] for c in rough)
         conditions[str(cond)] = entry
     return {"conditions": conditions, "paired_tests": paired_tests(metrics),
             "aborted_trials": metrics.loc[metrics["status"] != "completed", "trial"].tolist(),
@@ -243,8 +246,10 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}img{max-widt
 <h3>Speed variance, paired by trial</h3><img alt="paired speed variance" src="data:image/png;base64,{{ plots.variance }}">
 <h3>Speed around cut-ins</h3><img alt="speed traces around cut-ins" src="data:image/png;base64,{{ plots.cut_in_speed }}">
 <h2>How the overlay performed</h2>
-<table><tr><th>condition</th><th>cut-ins</th><th>cutting vehicle marked before the cut-in (within {{ window }} s)</th></tr>
-{% for c in conds %}<tr><td>{{ c }}</td><td>{{ summary.conditions[c].cut_ins }}</td><td>{{ summary.conditions[c].cut_ins_marked_in_time }}{% if summary.conditions[c].cut_ins %} ({{ "%.0f"|format(100 * summary.conditions[c].cut_ins_marked_in_time / summary.conditions[c].cut_ins) }} %){% endif %}</td></tr>{% endfor %}
+<p>A cut-in's vehicle counts as marked in time when the overlay showed it at some moment of the {{ window }} s before it cut in.</p>
+<table><tr><th>condition</th><th>cut-ins</th><th>marked in time</th><th>cut-ins by aggressive drivers (true type)</th><th>of those, marked in time</th></tr>
+{% for c in conds %}{% set e = summary.conditions[c] %}<tr><td>{{ c }}</td><td>{{ e.cut_ins }}</td><td>{{ e.cut_ins_marked_in_time }}{{ pct(e.cut_ins_marked_in_time, e.cut_ins) }}</td>
+<td>{{ e.cut_ins_by_aggressive }}</td><td>{{ e.cut_ins_by_aggressive_marked_in_time }}{{ pct(e.cut_ins_by_aggressive_marked_in_time, e.cut_ins_by_aggressive) }}</td></tr>{% endfor %}
 </table>
 <h2>Definitions</h2><ul>{% for k, v in definitions.items() %}<li><b>{{ k }}</b>: {{ v }}</li>{% endfor %}</ul>
 <p class="small">The paper does not state its units or how it aggregates TTC; the values above follow the definitions listed here.</p>
@@ -281,6 +286,7 @@ def write_report(study_dir: str | Path) -> dict[str, Path]:
         name=root.name, drivers=", ".join(sorted(str(d) for d in metrics["driver"].dropna().unique())),
         n_completed=int((metrics["status"] == "completed").sum()), aborted=summary["aborted_trials"], conds=conds,
         metrics=[m for m in SUMMARY_METRICS if all(m in summary["conditions"][c] for c in conds)], summary=summary,
-        paper=summary["paper"], definitions=DEFINITIONS, plots=_plots(metrics, extra), fmt=_fmt, window=CUT_IN_WINDOW_S)
+        paper=summary["paper"], definitions=DEFINITIONS, plots=_plots(metrics, extra), fmt=_fmt, window=f"{CUT_IN_WINDOW_S:g}",
+        pct=lambda k, n: f" ({100 * k / n:.0f} %)" if n else "")
     files["html"].write_text(html, encoding="utf-8")
     return files

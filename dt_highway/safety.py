@@ -13,7 +13,8 @@ Every definition, with its unit (the README's "Safety metrics" section repeats t
 * **speed variance** [(km/h)^2]: sample variance (N - 1) of the ego's speed in km/h over the
   trial's simulation steps; its SD [km/h]; mean speed [km/h].
 * **mean TTC** [s]: mean of the TTC samples that are closing and below ``ttc_cap_s`` (10 s);
-  **minimum TTC** [s] over the trial.
+  **minimum TTC** [s] over the trial, capped at ``ttc_cap_s`` (a trial that never closes below
+  10 s scores 10 s, so that trial means stay meaningful).
 * **TET** [s] and **TIT** [s^2] (Minderhoud & Bovy 2001) with threshold ``TTC* = 3 s``:
   ``TET = sum dt [0 <= TTC <= TTC*]``, ``TIT = sum dt (TTC* - TTC) [0 <= TTC <= TTC*]`` (the
   integral over the samples, one simulation step ``dt`` each).
@@ -253,7 +254,8 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
     :param dt_s: simulation step [s]
     :param cut_ins: the trial's cut-in events (``t_s``, ``vehicle_id``)
     :param ttc_star_s: TET/TIT threshold [s]
-    :param ttc_cap_s: mean TTC counts closing samples below this [s]
+    :param ttc_cap_s: mean TTC counts closing samples below this; minimum TTCs are capped
+        at it (a trial or cut-in that never closes below it scores the cap) [s]
     :param hard_brake_mps2: deceleration that counts as hard braking [m/s^2]
     :return: flat dict of metrics (units in the names)
     """
@@ -267,7 +269,7 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
     hw = hw[np.isfinite(hw)]
     lanes = steps["lane"].to_numpy()
     outcomes = cut_in_outcomes(steps, cut_ins)
-    cut_ttc = [o["min_ttc_s"] for o in outcomes]
+    cut_ttc = [min(o["min_ttc_s"], ttc_cap_s) for o in outcomes]
     reactions = [o["reaction_s"] for o in outcomes if math.isfinite(o["reaction_s"])]
     return {
         "duration_s": n * dt_s,
@@ -276,7 +278,7 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
         "speed_variance_kmh2": float(speed_kmh.var(ddof=1)) if n > 1 else math.nan,
         "speed_sd_kmh": float(speed_kmh.std(ddof=1)) if n > 1 else math.nan,
         "ttc_mean_s": float(capped.mean()) if len(capped) else math.nan,
-        "ttc_min_s": float(ttc.min()) if n else math.inf,
+        "ttc_min_s": float(min(ttc.min(), ttc_cap_s)) if n else ttc_cap_s,
         "tet_s": tet,
         "tit_s2": tit,
         "drac_max_mps2": float(steps["drac_mps2"].max()) if n else 0.0,
@@ -287,7 +289,6 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
         "lane_changes": int(np.count_nonzero(lanes[1:] != lanes[:-1])) if n > 1 else 0,
         "cut_ins": len(outcomes),
         "cut_in_ttc_min_s": float(min(cut_ttc)) if cut_ttc else math.nan,
-        "cut_in_ttc_mean_s": float(np.mean([x for x in cut_ttc if math.isfinite(x)])) if any(
-            math.isfinite(x) for x in cut_ttc) else math.nan,
+        "cut_in_ttc_mean_s": float(np.mean(cut_ttc)) if cut_ttc else math.nan,
         "reaction_mean_s": float(np.mean(reactions)) if reactions else math.nan,
     }

@@ -54,6 +54,8 @@ def test_trial_metrics_by_hand():
     assert m["ttc_min_s"] == pytest.approx(2.0)
     assert m["tet_s"] == pytest.approx(0.5) and m["tit_s2"] == pytest.approx(0.5)
     assert m["hard_brakes"] == 1 and m["lane_changes"] == 1 and m["collisions"] == 0
+    calm = trial_metrics(_steps([25.0] * 4, ttc=[math.inf, 400.0, 30.0, math.inf], closing=[0.0, 0.1, 1.0, -1.0]), 0.5)
+    assert calm["ttc_min_s"] == 10.0 and math.isnan(calm["ttc_mean_s"])  # never below the cap: the cap
 
 
 def test_cut_in_minimum_ttc_and_reaction_time():
@@ -62,6 +64,9 @@ def test_cut_in_minimum_ttc_and_reaction_time():
     (out,) = cut_in_outcomes(steps, [{"t_s": 1.0, "vehicle_id": 9}])
     assert out["min_ttc_s"] == pytest.approx(2.5)  # only while vehicle 9 leads
     assert out["reaction_s"] == pytest.approx(1.0)  # braking at t = 2.0 s
+    m = trial_metrics(steps, 0.5, [{"t_s": 1.0, "vehicle_id": 9}, {"t_s": 3.0, "vehicle_id": 5}])
+    assert m["cut_ins"] == 2 and m["cut_in_ttc_min_s"] == pytest.approx(1.0)
+    assert m["cut_in_ttc_mean_s"] == pytest.approx((2.5 + 1.0) / 2)
 
 
 def _car(x, y, vx, vid=None):
