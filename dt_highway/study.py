@@ -13,6 +13,7 @@ aborted without stopping the others.
 
 from __future__ import annotations
 
+import json
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
@@ -66,6 +67,33 @@ def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[s
             copy.write_bytes(data)
         frozen.append(str(copy))
     return str(frozen[0]), frozen[1]
+
+
+def check_resume(out: str | Path, specs: Sequence[TrialSpec]) -> dict[str, dict[str, Any]]:
+    """Refuse to resume a study with trials planned differently (seed, ``--set`` values, driver
+    or scenario) from those it was started with (its ``study.json``).
+
+    :return: the trials on record, by directory
+    :raises ConfigError: naming the first trial that differs
+    """
+    record = Path(out) / "study.json"
+    if not record.exists():
+        return {}
+    try:
+        before = {t["directory"]: t for t in json.loads(record.read_text())["trials"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}  # an unreadable record: nothing to compare with
+
+    def key(t: dict[str, Any]) -> tuple[Any, ...]:
+        name = lambda p: Path(p).name if p else None  # noqa: E731
+        return t["seed"], list(t["overrides"]), name(t["driver"]), name(t["scenario"])
+
+    for spec in specs:
+        old = before.get(spec.directory)
+        if old is not None and key(old) != key(asdict(spec)):
+            raise ConfigError(f"the study in {out} was started with other settings for {Path(spec.directory).name} "
+                              f"(seed, --set, driver, scenario: {key(old)}): use another --out, or the same settings")
+    return before
 
 
 @dataclass(frozen=True)
@@ -229,7 +257,9 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "study.json").write_text(dump_json({"trials": [asdict(s) for s in specs]}) + "\n")
+    recorded = check_resume(out, specs)
+    trials = {**recorded, **{s.directory: asdict(s) for s in specs}}  # trials of earlier runs stay on record
+    (out / "study.json").write_text(dump_json({"trials": list(trials.values())}) + "\n")
     result = StudyResult(str(out))
 
     def record(r: dict[str, Any]) -> None:

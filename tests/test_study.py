@@ -41,6 +41,9 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         assert abs(trial.steps["t_s"].max() - 4.0) < 0.1 and len(trial.steps) == 61  # 15 Hz, t = 0..4 s
     again = run_study(specs, out, workers=1)
     assert len(again.skipped) == 2 and not again.completed
+    other = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 8, "envs/highway-trial.toml", SHORT)
+    with pytest.raises(ConfigError, match="started with other settings for baseline-000"):
+        run_study(other, out, workers=1)  # another seed into the same trial directories
 
 
 def test_study_and_report_commands(tmp_path, capsys):
