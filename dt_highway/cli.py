@@ -51,10 +51,10 @@ def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DT
     return load_config(args.scenario, args.overrides, extra)
 
 
-def _progress(total: int, desc: str, quiet: bool) -> Any:
+def _progress(total: int, desc: str, quiet: bool, unit: str = "step") -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit="step", disable=quiet, file=sys.stderr, leave=False)
+    return tqdm(total=total, desc=desc, unit=unit, disable=quiet, file=sys.stderr, leave=False)
 
 
 def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
@@ -156,8 +156,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     driver, scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
     specs = [replace(s, driver=driver, scenario=scenario) for s in specs]
     t0 = time.perf_counter()
-    with _progress(len(specs), "study", args.quiet) as bar:
-        bar.unit = "trial"
+    with _progress(len(specs), "study", args.quiet, unit="trial") as bar:
 
         def done(r: dict[str, Any]) -> None:
             bar.update(1)

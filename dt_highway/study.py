@@ -292,6 +292,20 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     return result
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail fast with one line when a Ray address (``host:port`` or ``ray://host:port``)
+    does not answer (Ray itself retries for minutes)."""
+    import socket
+
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ConfigError(f"--ray-address must be host:port, ray://host:port or auto (got {address!r})")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as err:
+        raise ConfigError(f"cannot reach Ray at {address}: {err}") from None
+
+
 def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> Iterator[dict[str, Any]]:
     """Run the trials as Ray tasks (one CPU each), yielding each result as it finishes.
 
@@ -303,6 +317,8 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> I
         import ray
     except ImportError:
         raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
+    if address is not None and address != "auto":
+        _check_reachable(address)
     started = not ray.is_initialized()
     if started:
         try:

@@ -99,6 +99,8 @@ def test_the_ray_backend_runs_the_same_trials_on_a_local_ray(tmp_path):
                       tmp_path / "local", workers=1)
     ray_steps = load_trial(out / "trials" / "adas-000").steps
     assert ray_steps.equals(load_trial(local.completed[0]).steps)  # same seed, same trial, wherever it ran
+    with pytest.raises(ConfigError, match="cannot reach Ray at 127.0.0.1:1"):
+        run_study(specs, out, backend="ray", ray_address="127.0.0.1:1")  # fails at once, Ray would retry for minutes
 
 
 def test_a_study_runs_on_copies_of_its_inputs_and_refuses_changed_ones(tmp_path):
