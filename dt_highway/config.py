@@ -342,6 +342,13 @@ class FusionConfig(_Section):
     continuity_bonus: float = Field(0.5, ge=0, le=10, description="tracked: cost taken off keeping a track [-]")
 
 
+class OverlayConfig(_Section):
+    """What the driver sees of the fusion's output: steady marks (:mod:`dt_highway.overlay`)."""
+
+    onset_frames: int = Field(2, ge=1, le=100, description="consecutive fusion frames before a mark shows [-]")
+    hold_s: float = Field(1.0, ge=0, le=10, description="a mark stays this long after its vehicle is lost [s]")
+
+
 # ----------------------------------------------------------------------------- root
 class DTConfig(_Section):
     """The whole configuration of a dt-highway env."""
@@ -353,6 +360,7 @@ class DTConfig(_Section):
     camera: CameraConfig = Field(default_factory=CameraConfig)
     detector: DetectorConfig = Field(default_factory=DetectorConfig)
     fusion: FusionConfig = Field(default_factory=FusionConfig)
+    overlay: OverlayConfig = Field(default_factory=OverlayConfig)
 
     @model_validator(mode="after")
     def _camera_for_observation(self) -> DTConfig:

@@ -37,6 +37,7 @@ from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
 from dt_highway.drivers.control import DriverAction
+from dt_highway.overlay import OverlayStabilizer
 from dt_highway.safety import SafetyMonitor
 from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
 from dt_highway.traffic import (
@@ -192,6 +193,7 @@ class DTHighwayEnv(HighwayEnv):
         self._episode = 0
         self.detector = None
         self.fusion: Fusion | None = None
+        self.overlay: OverlayStabilizer | None = None
         self.adas: dict[str, Any] | None = None
         self.safety = SafetyMonitor(lane_width_m=StraightLane.DEFAULT_WIDTH)
         self._safety_on = False
@@ -348,6 +350,7 @@ class DTHighwayEnv(HighwayEnv):
         if cfg.fusion.enabled:
             self.detector = make_detector(cfg.detector, rngs["detector"])
             self.fusion = Fusion(self.camera.camera, fusion_settings(cfg.fusion), rngs["fusion"])
+            self.overlay = OverlayStabilizer(cfg.overlay.onset_frames, cfg.overlay.hold_s)
         else:
             self.detector, self.fusion = None, None
         self.safety.reset()
@@ -568,27 +571,30 @@ class DTHighwayEnv(HighwayEnv):
     def _run_fusion(self) -> dict[str, Any]:
         """Detector and fusion on this step's frame: the ADAS output (never ground truth).
 
-        :return: ``overlay``: one item per vehicle the twin tags aggressive and the fusion
-            placed in the image (``vehicle_id``, ``box`` [px], ``label``, ``confidence``,
-            ``distance_m``); ``placements``: every placed connected vehicle; ``n_boxes``
+        :return: ``overlay``: the marks the driver sees: vehicles the twin tags aggressive
+            and the fusion placed in the image, kept steady by the overlay stabilizer
+            (``vehicle_id``, ``box`` [px], ``label``, ``confidence``, ``distance_m``, ``rule``,
+            ``held``); ``fusion_items``: the same before stabilizing (this frame's placements
+            only); ``placements``: every placed connected vehicle; ``n_boxes``
         """
         frame = self.camera_frame()
         detections: Detections = self.detector.detect(frame)
         view = self.twin_view.vehicles if self.twin_view is not None else ()
         placements = self.fusion.step(frame, detections, view, self.twin_now_s)
         tags = {v.vehicle_id: v for v in view}
-        overlay = []
+        items = []
         for vid, p in placements.items():
             if p.box is None:
                 continue
             tv = tags[vid]
             if tv.tag == AGGRESSIVE:
-                overlay.append({
+                items.append({
                     "vehicle_id": vid, "box": list(p.box), "label": "aggressive driver",
                     "confidence": float(tv.confidence), "distance_m": p.distance_m, "rule": p.rule,
                 })
         return {
-            "overlay": overlay,
+            "overlay": self.overlay.update(items, self.sim_time_s),
+            "fusion_items": items,
             "placements": {vid: list(p.box) for vid, p in placements.items() if p.box is not None},
             "n_boxes": len(detections),
             "method": self.fusion.settings.method,

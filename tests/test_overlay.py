@@ -1,0 +1,50 @@
+"""The overlay: steady marks from the fusion's per-frame items, and their drawing."""
+
+import numpy as np
+import pytest
+
+from dt_highway.overlay import MARK_RGB, OverlayStabilizer, draw_overlay
+
+
+def _item(vid, box, dist=30.0):
+    return {"vehicle_id": vid, "box": list(box), "label": "aggressive driver", "confidence": 0.87, "distance_m": dist}
+
+
+def test_a_mark_needs_consecutive_frames_to_appear_and_is_held_then_dropped():
+    st = OverlayStabilizer(onset_frames=2, hold_s=1.0)
+    assert st.update([_item(7, (100, 100, 140, 130))], 0.0) == []  # one frame: not yet
+    assert st.update([], 0.2) == []  # never shown: nothing to hold
+    assert st.update([_item(7, (100, 100, 140, 130))], 0.4) == []  # the streak starts again
+    (shown,) = st.update([_item(7, (110, 100, 150, 130))], 0.6)
+    assert not shown["held"] and shown["box"] == [110, 100, 150, 130]
+    # lost by the fusion: held at the box moved on at its image velocity (50 px/s to the right)
+    (held,) = st.update([], 0.8)
+    assert held["held"] and held["box"] == pytest.approx([120, 100, 160, 130])
+    assert held["confidence"] == 0.87
+    (back,) = st.update([_item(7, (125, 100, 165, 130))], 1.0)  # back within the hold: shown at once
+    assert not back["held"]
+    assert st.update([], 1.8) != [] and st.update([], 2.1) == []  # 1.1 s after: gone
+    st.reset()
+    assert st.update([_item(7, (1, 1, 5, 5))], 3.0) == []
+
+
+def test_onset_of_one_frame_shows_at_once_and_bad_settings_are_refused():
+    st = OverlayStabilizer(onset_frames=1, hold_s=0.0)
+    assert len(st.update([_item(1, (0, 0, 4, 4)), _item(2, (5, 5, 9, 9))], 0.0)) == 2
+    assert st.update([_item(2, (5, 5, 9, 9))], 0.1)[0]["vehicle_id"] == 2
+    with pytest.raises(ValueError, match="onset_frames"):
+        OverlayStabilizer(onset_frames=0)
+    with pytest.raises(ValueError, match="hold_s"):
+        OverlayStabilizer(hold_s=-1)
+
+
+def test_draw_overlay_marks_the_box_and_a_label_and_leaves_the_input_alone():
+    rgb = np.full((360, 640, 3), 90, np.uint8)
+    out = draw_overlay(rgb, [_item(3, (300, 200, 380, 260)), _item(4, (-50, -50, -10, -10))])
+    assert out.shape == rgb.shape and (rgb == 90).all()
+    assert tuple(out[230, 300]) == MARK_RGB  # the box's left edge
+    assert (out[225, 320:360] == 90).all()  # inside the box: the car stays visible
+    banner = out[150:198, 300:380]
+    assert (banner == MARK_RGB).all(axis=-1).mean() > 0.3 and (banner == 255).all(axis=-1).any()  # label above
+    assert (out[:50, :50] == 90).all()  # a box off the image draws nothing
+    assert np.array_equal(draw_overlay(rgb, []), rgb)
