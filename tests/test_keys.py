@@ -1,0 +1,47 @@
+"""Keyboard pedals and key scripts."""
+
+import pytest
+
+from dt_highway.hmi import KeyEvent, KeyScript, KeyScriptError, Pedals, PedalSettings
+
+
+def test_pedals_ramp_smoothly_and_the_brake_wins():
+    p = Pedals(PedalSettings(throttle_max_mps2=2.0, brake_max_mps2=6.0, coast_mps2=-0.5, throttle_rate_mps3=2.0,
+                             brake_rate_mps3=12.0, release_rate_mps3=10.0))
+    assert p.accel_mps2 == -0.5  # released: coasting
+    assert p.update(True, False, 0.5) == pytest.approx(0.5)  # throttle rises 2 m/s^3
+    assert p.update(True, False, 1.0) == pytest.approx(2.0)  # and stops at full throttle
+    assert p.update(True, True, 0.25) == pytest.approx(-1.0)  # both held: braking, 12 m/s^3
+    assert p.update(False, True, 1.0) == pytest.approx(-6.0)  # full brake
+    assert p.update(False, False, 0.2) == pytest.approx(-4.0)  # released: back towards coasting
+    assert p.update(True, False, 0.2) == pytest.approx(-2.0)  # off the brake at the release rate
+    assert p.update(True, False, 0.2) == pytest.approx(-0.4)  # then throttle: -2 -> coast (-0.5) fast, then 2 m/s^3
+    p.reset()
+    assert p.accel_mps2 == -0.5
+
+
+def test_key_script_parses_and_replays_in_time_order():
+    script = KeyScript.parse("# demo\n0.5 down UP\n3.0 up up   # released\n\n3.0 down left\n3.1 up LEFT\n")
+    assert script.events == [KeyEvent(0.5, True, "UP"), KeyEvent(3.0, False, "UP"), KeyEvent(3.0, True, "LEFT"),
+                             KeyEvent(3.1, False, "LEFT")]
+    assert script.due(0.4) == [] and script.due(0.5) == [KeyEvent(0.5, True, "UP")]
+    assert len(script.due(3.05)) == 2 and not script.finished
+    assert script.due(10.0) == [KeyEvent(3.1, False, "LEFT")] and script.finished
+
+
+@pytest.mark.parametrize("text, message", [
+    ("0.5 down", "expected 'TIME down|up KEY'"),
+    ("soon down UP", "time must be a number"),
+    ("-1 down UP", "must be >= 0"),
+    ("2 down UP\n1 up UP", "keys.txt:2: times must not go back"),
+    ("1 hold UP", "action must be 'down' or 'up'"),
+    ("1 down SPACE", "unknown key 'SPACE' (allowed: UP, DOWN, LEFT, RIGHT, P, ESC)"),
+])
+def test_bad_key_scripts_name_the_line(text, message):
+    with pytest.raises(KeyScriptError, match=message.replace("(", r"\(").replace(")", r"\)").replace("|", r"\|")):
+        KeyScript.parse(text, "keys.txt")
+
+
+def test_a_missing_key_script_is_one_line(tmp_path):
+    with pytest.raises(KeyScriptError, match="cannot read the key script"):
+        KeyScript.load(tmp_path / "none.txt")
