@@ -184,6 +184,39 @@ def _print_summary(path: Path) -> None:
               f"collisions {c['collisions']}  cut-ins {c['cut_ins']} ({c['cut_ins_marked_in_time']} marked in time)")
 
 
+def cmd_drive(args: argparse.Namespace) -> int:
+    """One keyboard trial in the driving window."""
+    from dt_highway.hmi.drive import DriveOptions, run_drive
+    from dt_highway.hmi.keys import KeyScript, KeyScriptError
+    from dt_highway.study import find_file
+
+    try:
+        script = KeyScript.load(args.keys_from) if args.keys_from else None
+    except KeyScriptError as err:
+        raise ConfigError(str(err)) from None
+    if args.screenshots and not args.screenshot_every:
+        raise ConfigError("--screenshots DIR needs --screenshot-every S")
+    opts = DriveOptions(
+        participant=_participant(args.participant), condition=args.condition, out=Path(args.out),
+        practice=args.practice, scenario=find_file(args.scenario or STUDY_SCENARIO, "envs"),
+        overrides=list(args.overrides), duration_s=args.duration, seed=args.seed, keys_from=script,
+        screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
+        fps=args.fps, minimap=not args.no_minimap)
+    result = run_drive(opts)
+    print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
+          + (f", {result['screenshots']} screenshots" if result["screenshots"] else ""))
+    return 0 if result["status"] == "completed" else 1
+
+
+def _participant(text: str) -> str:
+    """A participant id: letters, digits, '-' and '_' (it names directories)."""
+    import re
+
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", text or ""):
+        raise ConfigError(f"--participant must be 1-64 letters, digits, '-' or '_' (got {text!r})")
+    return text
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     """The safety-metrics report of a study directory."""
     from dt_highway.report import write_report
@@ -361,6 +394,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write steps.parquet in each completed trial's directory (needs pyarrow)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("drive", help="one keyboard trial in the driving window (first-person camera, AR overlay)")
+    _add_config_args(p, STUDY_SCENARIO)
+    p.add_argument("--participant", required=True, help="participant id, e.g. P01")
+    p.add_argument("--condition", required=True, choices=("baseline", "adas"), help="baseline or adas")
+    p.add_argument("--practice", action="store_true", help="a practice trial (not in the report)")
+    p.add_argument("--duration", type=_positive(float, "--duration"), help="trial length [s] (default: the scenario's)")
+    p.add_argument("--seed", type=_seed, default=0, help="traffic seed (default 0)")
+    p.add_argument("--out", required=True, help="study directory, e.g. runs/<study>")
+    p.add_argument("--keys-from", metavar="FILE", help="replay a key script ('0.5 down UP' lines) instead of the keyboard")
+    p.add_argument("--screenshot-every", type=_positive(float, "--screenshot-every"), metavar="S",
+                   help="save what the participant sees every S seconds of trial time")
+    p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
+    p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
+    p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
+    p.set_defaults(func=cmd_drive)
 
     p = sub.add_parser("report", help="the safety-metrics report of a study directory")
     p.add_argument("study", help="study directory (runs/<name>)")

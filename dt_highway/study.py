@@ -172,30 +172,10 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
             obs, info = env.reset(seed=spec.seed)
             driver.reset(u, spec.seed)
             action = np.zeros(2)
-            shown: dict[int, str] = {}
-            lane, crashed = None, False
+            rec = TrialRecorder(log)
             end: str | None = None  # set when the episode ends; its last info is logged first
             while True:
-                overlay = (info.get("adas") or {}).get("overlay", [])
-                now = {int(o["vehicle_id"]): o["label"] for o in overlay}
-                t = float(info["time_s"])
-                for vid in now.keys() - shown.keys():
-                    log.event("overlay_shown", t, vehicle_id=vid, label=now[vid])
-                for vid in shown.keys() - now.keys():
-                    log.event("overlay_hidden", t, vehicle_id=vid)
-                shown = now
-                for c in info["safety"]["cut_ins"]:
-                    log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
-                              gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
-                for s in info["safety"]["samples"]:
-                    if lane is not None and s["lane"] != lane:
-                        log.event("lane_change", s["t_s"], from_lane=lane, to_lane=s["lane"])
-                    if s["crashed"] and not crashed:
-                        log.event("collision", s["t_s"], leader_id=s["leader_id"])
-                    lane, crashed = s["lane"], bool(s["crashed"])
-                    log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": "",
-                              "overlay_ids": ";".join(str(v) for v in sorted(now)),
-                              "overlay_labels": ";".join(now[v] for v in sorted(now))})
+                rec.record(info, action)
                 if end is not None:
                     break
                 action = np.asarray(driver.act(u, obs, info), dtype=float)
@@ -214,6 +194,50 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         except (ImportError, ValueError) as err:  # the CSV log is complete: report, keep it
             return {"status": "failed", "directory": str(out), "error": str(err)}
     return {"status": "completed", "directory": str(out), "metrics": trial.metrics()}
+
+
+class TrialRecorder:
+    """Writes what each env step reports into a trial log: one row per simulation step
+    (safety samples, the driver's action or keys, the marks shown) and the events (cut-ins,
+    marks shown and hidden, lane changes, collisions). Shared by scripted and keyboard trials.
+
+    :param log: the trial's writer
+    """
+
+    def __init__(self, log: Any) -> None:
+        self.log = log
+        self.shown: dict[int, str] = {}
+        self._lane: int | None = None
+        self._crashed = False
+
+    def record(self, info: dict[str, Any], action: Any, keys: str = "") -> None:
+        """Log the samples and events of one env step.
+
+        :param info: the step's info (``safety``, ``adas``, ``time_s``)
+        :param action: the ``[acceleration, lane]`` action that led to it
+        :param keys: keys held (keyboard trials), ``;``-separated
+        """
+        log = self.log
+        overlay = (info.get("adas") or {}).get("overlay", [])
+        now = {int(o["vehicle_id"]): o["label"] for o in overlay}
+        t = float(info["time_s"])
+        for vid in now.keys() - self.shown.keys():
+            log.event("overlay_shown", t, vehicle_id=vid, label=now[vid])
+        for vid in self.shown.keys() - now.keys():
+            log.event("overlay_hidden", t, vehicle_id=vid)
+        self.shown = now
+        for c in info["safety"]["cut_ins"]:
+            log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
+                      gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
+        ids = sorted(now)
+        for s in info["safety"]["samples"]:
+            if self._lane is not None and s["lane"] != self._lane:
+                log.event("lane_change", s["t_s"], from_lane=self._lane, to_lane=s["lane"])
+            if s["crashed"] and not self._crashed:
+                log.event("collision", s["t_s"], leader_id=s["leader_id"])
+            self._lane, self._crashed = s["lane"], bool(s["crashed"])
+            log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": keys,
+                      "overlay_ids": ";".join(str(v) for v in ids), "overlay_labels": ";".join(now[v] for v in ids)})
 
 
 @dataclass

@@ -1,0 +1,357 @@
+"""The driving window: a participant drives the ego from the first-person camera view.
+
+One trial: the scenario's highway with the ego under the keyboard (:mod:`dt_highway.hmi.keys`),
+the synthetic camera as the main picture, in the ADAS condition the overlay's steady marks
+drawn on it (:func:`dt_highway.overlay.draw_overlay`, from the fusion's output only), a HUD
+(speed in km/h, lane, time left, condition) and highway-env's top-down view as a mini-map
+(M toggles it). The simulation is locked to the wall clock at its configured frequency; the
+window redraws at up to ``fps`` frames per second.
+
+Every trial is logged like a scripted one (:mod:`dt_highway.trial_log`), plus every key press
+and release with its time and the keys held at each step. ``--keys-from`` replays a key
+script (no prompts or confirmations then), ``--screenshot-every`` saves PNGs of exactly what
+the participant saw. Headless: ``SDL_VIDEODRIVER=offscreen``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from dt_highway.config import ConfigError, load_config
+from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals
+from dt_highway.overlay import draw_overlay
+
+CONDITIONS = ("baseline", "adas")
+
+LEGEND = (
+    ("Up", "throttle (hold)"),
+    ("Down", "brake (hold)"),
+    ("Left / Right", "change lane"),
+    ("M", "mini-map on / off"),
+    ("P", "pause"),
+    ("Esc", "quit (asks first)"),
+)
+"""The keys, as shown before a trial"""
+
+
+def drive_config(condition: str) -> dict[str, Any]:
+    """What a keyboard trial changes in the configuration: the ``Driver`` action with one
+    decision per simulation step (the keys act at once), the camera in both conditions (it is
+    the participant's view), the fusion and its overlay in ``adas`` only."""
+    if condition not in CONDITIONS:
+        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
+    return {"highway": {"action": {"type": "Driver"}}, "camera": {"enabled": True},
+            "fusion": {"enabled": condition == "adas"}}
+
+
+@dataclass
+class Hud:
+    """What the HUD shows.
+
+    :param speed_kmh: ego speed [km/h]
+    :param lane: lane number, 1 = leftmost
+    :param n_lanes: lanes on the road
+    :param time_left_s: trial time left [s]
+    :param condition: condition name (``practice`` for a practice trial)
+    :param paused: the trial is paused
+    """
+
+    speed_kmh: float
+    lane: int
+    n_lanes: int
+    time_left_s: float
+    condition: str
+    paused: bool = False
+
+
+def _text(img: np.ndarray, text: str, org: tuple[int, int], scale: float, colour: tuple[int, int, int] = (255, 255, 255),
+          thick: int = 1, shadow: bool = True) -> None:
+    font = cv2.FONT_HERSHEY_DUPLEX
+    if shadow:
+        cv2.putText(img, text, (org[0] + 1, org[1] + 1), font, scale, (0, 0, 0), thick + 1, cv2.LINE_AA)
+    cv2.putText(img, text, org, font, scale, colour, thick, cv2.LINE_AA)
+
+
+def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
+                  minimap: np.ndarray | None = None) -> np.ndarray:
+    """The picture the participant sees: the camera frame, the marks (ADAS), the HUD and the
+    mini-map. Used by the window and by the screenshots, so both show the same.
+
+    :param rgb: camera frame ``uint8 (H, W, 3)``
+    :param marks: the overlay's marks, or ``None`` (baseline: nothing drawn)
+    :param hud: the HUD's values
+    :param minimap: highway-env's top-down view, or ``None`` (hidden)
+    :return: ``uint8 (H, W, 3)`` RGB
+    """
+    out = draw_overlay(rgb, marks) if marks else np.ascontiguousarray(rgb).copy()
+    h, w = out.shape[:2]
+    s = max(h / 720.0, 0.35)
+    pad = int(16 * s)
+    t1, t2, t4 = max(1, round(1.5 * s)), max(1, round(2 * s)), max(1, round(4 * s))
+    small = None
+    if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
+        mh, mw = minimap.shape[:2]
+        tw = int(w * 0.36)
+        small = cv2.resize(minimap, (tw, max(1, int(mh * tw / mw))), interpolation=cv2.INTER_AREA)
+    band_h = max(int(110 * s), (small.shape[0] + 2 * pad) if small is not None else 0)
+    band = out[h - band_h:, :]
+    band[:] = (band * 0.45).astype(np.uint8)
+    base = h - band_h // 2
+    _text(out, f"{hud.speed_kmh:3.0f}", (pad, base + int(38 * s)), 2.6 * s, thick=t4, shadow=False)
+    _text(out, "km/h", (pad + int(175 * s), base + int(38 * s)), 0.9 * s, thick=t2, shadow=False)
+    _text(out, f"lane {hud.lane} of {hud.n_lanes}", (pad + int(300 * s), base - int(6 * s)), 1.0 * s, thick=t1, shadow=False)
+    mins, secs = divmod(max(int(math.ceil(hud.time_left_s)), 0), 60)
+    _text(out, f"time left {mins}:{secs:02d}", (pad + int(300 * s), base + int(34 * s)), 1.0 * s, thick=t1, shadow=False)
+    if small is not None:
+        th, tw = small.shape[:2]
+        x0, y0 = w - tw - pad, h - band_h + (band_h - th) // 2
+        out[y0:y0 + th, x0:x0 + tw] = small
+        cv2.rectangle(out, (x0 - 1, y0 - 1), (x0 + tw, y0 + th), (200, 200, 200), 1)
+    (cw, ch), _ = cv2.getTextSize(hud.condition.upper(), cv2.FONT_HERSHEY_DUPLEX, 0.9 * s, t1)
+    cv2.rectangle(out, (pad // 2, pad // 2), (pad + cw + pad // 2, pad + ch + pad // 2), (0, 0, 0), -1)
+    _text(out, hud.condition.upper(), (pad, pad + ch), 0.9 * s, (255, 230, 120), thick=t1, shadow=False)
+    if hud.paused:
+        _text(out, "PAUSED (P to go on)", (w // 2 - int(250 * s), h // 2), 1.4 * s, (255, 230, 120), thick=max(1, round(3 * s)))
+    return out
+
+
+def card(size: tuple[int, int], title: str, lines: list[str]) -> np.ndarray:
+    """A plain screen with a title and lines of text (start, break and end screens).
+
+    :param size: ``(width, height)`` [px]
+    """
+    w, h = size
+    out = np.full((h, w, 3), 28, np.uint8)
+    s = max(h / 720.0, 0.35)
+    _text(out, title, (int(40 * s), int(90 * s)), 1.6 * s, (255, 230, 120), thick=max(1, round(3 * s)), shadow=False)
+    for i, line in enumerate(lines):
+        _text(out, line, (int(40 * s), int((160 + 48 * i) * s)), 0.95 * s, thick=max(1, round(2 * s)), shadow=False)
+    return out
+
+
+@dataclass
+class DriveOptions:
+    """One keyboard trial.
+
+    :param participant: participant id
+    :param condition: ``baseline`` or ``adas``
+    :param out: the study directory (the trial goes to ``<out>/trials/<participant>-<condition>``)
+    :param practice: a practice trial (``<participant>-practice``; left out of the report)
+    :param scenario: scenario file
+    :param overrides: ``--set`` strings
+    :param duration_s: trial length [s] (``None``: the scenario's)
+    :param seed: traffic seed
+    :param keys_from: a key script to replay instead of the keyboard
+    :param screenshot_every_s: save a screenshot this often [s of trial time] (``None``: never)
+    :param screenshots: where screenshots go (default ``<trial>/screenshots``)
+    :param fps: most window frames per second
+    :param minimap: show the mini-map at the start
+    """
+
+    participant: str
+    condition: str
+    out: Path
+    practice: bool = False
+    scenario: str | None = None
+    overrides: list[str] = field(default_factory=list)
+    duration_s: float | None = None
+    seed: int = 0
+    keys_from: KeyScript | None = None
+    screenshot_every_s: float | None = None
+    screenshots: Path | None = None
+    fps: int = 60
+    minimap: bool = True
+
+
+PYGAME_KEYS = {"UP": "K_UP", "DOWN": "K_DOWN", "LEFT": "K_LEFT", "RIGHT": "K_RIGHT", "P": "K_p", "ESC": "K_ESCAPE",
+               "M": "K_m"}
+
+
+def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Path:
+    """Where a keyboard trial is logged."""
+    return Path(out) / "trials" / f"{participant}-{'practice' if practice else condition}"
+
+
+def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None = None) -> dict[str, Any]:
+    """Run one keyboard trial in a pygame window and log it.
+
+    :param opts: the trial
+    :param on_frame: called with every composed frame (tests, recording)
+    :return: ``directory``, ``status`` (``completed`` or ``aborted``), ``end_reason``,
+        ``frames`` drawn, ``screenshots`` saved
+    """
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    import gymnasium as gym
+    import pygame
+
+    from dt_highway.study import TrialRecorder
+    from dt_highway.trial_log import TrialWriter
+
+    overrides = list(opts.overrides)
+    if opts.duration_s is not None:
+        overrides.append(f"highway.duration={opts.duration_s}")
+    cfg = load_config(opts.scenario, overrides, drive_config(opts.condition))
+    f_sim = cfg.highway.simulation_frequency
+    cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"], drive_config(opts.condition))
+    directory = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
+    shots_dir = opts.screenshots or directory / "screenshots"
+    scripted = opts.keys_from is not None
+    label = "practice" if opts.practice else opts.condition
+
+    env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
+    u = env.unwrapped
+    size = (cfg.camera.width_px, cfg.camera.height_px)
+    pygame.display.init()  # display only: text is drawn with OpenCV, no sound
+    screen = pygame.display.set_mode(size)
+    pygame.display.set_caption(f"dt-highway: {opts.participant} {label}")
+    clock = pygame.time.Clock()
+
+    def show(img: np.ndarray) -> None:
+        screen.blit(pygame.image.frombuffer(np.ascontiguousarray(img).tobytes(), size, "RGB"), (0, 0))
+        pygame.display.flip()
+        if on_frame is not None:
+            on_frame(img)
+
+    def wait_key(img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None) -> int | None:
+        """Show ``img`` until one of ``keys`` is pressed (or ``seconds`` pass)."""
+        show(img)
+        t_end = None if seconds is None else time.monotonic() + seconds
+        while t_end is None or time.monotonic() < t_end:
+            for ev in pygame.event.get():
+                if ev.type == pygame.QUIT:
+                    return pygame.K_ESCAPE
+                if ev.type == pygame.KEYDOWN and (not keys or ev.key in keys):
+                    return ev.key
+            clock.tick(30)
+        return None
+
+    meta = {"driver": "keyboard", "driver_file": None, "driver_params": {"keys_from": bool(scripted)},
+            "participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
+            "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
+            "config": cfg.to_dict(), "simulation_frequency_hz": f_sim}
+    frames, shots = 0, 0
+    end_reason, status = "time limit", "completed"
+    try:
+        if not scripted:
+            legend = [f"{k:14s} {v}" for k, v in LEGEND]
+            if wait_key(card(size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
+                        (pygame.K_RETURN, pygame.K_KP_ENTER, pygame.K_ESCAPE)) == pygame.K_ESCAPE:
+                return {"directory": str(directory), "status": "not started", "end_reason": "quit before the start",
+                        "frames": 0, "screenshots": 0}
+            for n in (3, 2, 1):
+                wait_key(card(size, str(n), ["get ready"]), (), 1.0)
+        with TrialWriter(directory, meta) as log:
+            obs, info = env.reset(seed=opts.seed)
+            rec = TrialRecorder(log)
+            pedals = Pedals()
+            held: set[str] = set()
+            lane_tap = 0
+            dt = 1.0 / f_sim
+            t_sim, n_steps = 0.0, 0
+            duration = cfg.highway.duration
+            action = np.array([pedals.accel_mps2, 0.0])
+            rec.record(info, action, "")
+            paused, confirm_quit, show_map = False, False, opts.minimap
+            next_shot = 0.0 if opts.screenshot_every_s else math.inf
+            wall0 = time.monotonic()
+            paused_s = 0.0
+            pause_start = 0.0
+            done = False
+
+            def key_event(ev: KeyEvent) -> None:
+                nonlocal lane_tap, paused, confirm_quit, done, end_reason, status, show_map, paused_s, pause_start
+                log.event("key_down" if ev.down else "key_up", ev.t_s, key=ev.key)
+                if ev.down:
+                    held.add(ev.key)
+                else:
+                    held.discard(ev.key)
+                    return
+                if ev.key == "ESC":
+                    if confirm_quit or scripted:
+                        done, end_reason, status = True, "quit by the participant", "aborted"
+                    else:
+                        confirm_quit = True
+                        if not paused:
+                            paused, pause_start = True, time.monotonic()
+                    return
+                if confirm_quit:  # any other key: go on
+                    confirm_quit = False
+                    if paused:
+                        paused, paused_s = False, paused_s + time.monotonic() - pause_start
+                    return
+                if ev.key in ("LEFT", "RIGHT"):
+                    lane_tap = -1 if ev.key == "LEFT" else 1
+                elif ev.key == "P":
+                    if paused:
+                        paused, paused_s = False, paused_s + time.monotonic() - pause_start
+                    else:
+                        paused, pause_start = True, time.monotonic()
+                elif ev.key == "M":
+                    show_map = not show_map
+
+            names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
+            while not done:
+                for ev in pygame.event.get():
+                    if ev.type == pygame.QUIT:
+                        done, end_reason, status = True, "window closed", "aborted"
+                    elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
+                        key_event(KeyEvent(t_sim, ev.type == pygame.KEYDOWN, names[ev.key]))
+                if scripted and paused:  # a script's pause lasts in wall time: its clock goes on
+                    for ev in opts.keys_from.due(t_sim + time.monotonic() - pause_start):
+                        key_event(ev)
+                if done:
+                    break
+                # the simulation catches up with the wall clock, one simulation step at a time
+                now = (time.monotonic() - wall0 - paused_s) if not paused else t_sim
+                while not done and not paused and t_sim + dt <= now + 1e-9:
+                    if scripted:
+                        for ev in opts.keys_from.due(t_sim):
+                            key_event(ev)
+                        if done or paused:
+                            break
+                    accel = pedals.update("UP" in held, "DOWN" in held, dt)
+                    action = np.array([accel, float(lane_tap)])
+                    lane_tap = 0
+                    obs, _, terminated, truncated, info = env.step(action)
+                    n_steps += 1
+                    t_sim = n_steps * dt
+                    rec.record(info, action, ";".join(sorted(held)))
+                    if terminated or truncated:
+                        done = True
+                        end_reason = "collision" if u.vehicle.crashed else "time limit"
+                ego = u.vehicle
+                hud = Hud(float(ego.speed) * 3.6, int(ego.lane_index[2]) + 1,
+                          len(u.road.network.graph[ego.lane_index[0]][ego.lane_index[1]]),
+                          duration - t_sim, label, paused)
+                marks = (info.get("adas") or {}).get("overlay") if cfg.fusion.enabled else None
+                img = compose_frame(u.camera_frame().rgb, marks, hud, env.render() if show_map else None)
+                if confirm_quit:
+                    _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
+                          max(size[1] / 720.0, 0.35) * 1.0, (255, 230, 120), thick=2)
+                show(img)
+                frames += 1
+                if t_sim + 1e-9 >= next_shot:
+                    shots_dir.mkdir(parents=True, exist_ok=True)
+                    cv2.imwrite(str(shots_dir / f"t{t_sim:07.2f}s.png"), img[..., ::-1])
+                    shots += 1
+                    next_shot += opts.screenshot_every_s or math.inf
+                clock.tick(opts.fps)
+            log.meta["end_reason"] = end_reason
+            if status != "completed":
+                log.close(status, end_reason)
+        if not scripted:
+            wait_key(card(size, "Trial saved", [f"{directory}", "", "Press any key"]), (), 10.0)
+    finally:
+        env.close()
+        pygame.quit()
+    return {"directory": str(directory), "status": status, "end_reason": end_reason, "frames": frames,
+            "screenshots": shots}

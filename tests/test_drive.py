@@ -1,0 +1,102 @@
+"""The keyboard driving window, replayed from key scripts, headless (SDL offscreen)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dt_highway.cli import main
+from dt_highway.overlay import MARK_RGB
+from dt_highway.trial_log import load_trial
+
+FAST = ["--set", "highway.vehicles_count=16", "--set", "twin.preroll_s=20", "--set", "camera.width_px=480",
+        "--set", "camera.height_px=270", "--no-minimap"]
+SCRIPT = "0.2 down UP\n1.0 up UP\n1.2 down LEFT\n1.3 up LEFT\n1.6 down DOWN\n2.0 up DOWN\n"
+
+
+def _drive(tmp_path, condition, *extra):
+    keys = tmp_path / "keys.txt"
+    keys.write_text(SCRIPT)
+    args = ["drive", "--participant", "P01", "--condition", condition, "--duration", "2.4", "--out", str(tmp_path / "s"),
+            "--keys-from", str(keys), "--screenshot-every", "1", "--seed", "3", *FAST, *extra]
+    assert main(args) == 0
+    return load_trial(tmp_path / "s" / "trials" / f"P01-{condition}")
+
+
+def test_a_replayed_trial_is_logged_completely_with_the_scripted_keys(tmp_path):
+    trial = _drive(tmp_path, "adas")
+    assert trial.meta["status"] == "completed" and trial.meta["participant"] == "P01"
+    assert trial.meta["condition"] == "adas" and trial.meta["driver"] == "keyboard"
+    keys = [(e["t_s"], e["kind"], e["key"]) for e in trial.events if e["kind"].startswith("key_")]
+    expected = [(float(t), f"key_{a}", k) for t, a, k in (line.split() for line in SCRIPT.splitlines())]
+    assert keys == expected
+    steps = trial.steps
+    assert len(steps) == 37 and steps["t_s"].max() == pytest.approx(2.4)  # 15 Hz, one row per simulation step
+    held = steps.set_index("t_s")["keys"].fillna("")
+    assert held.loc[0.6:0.9].eq("UP").all() and held.loc[1.7:1.9].eq("DOWN").all() and held.loc[2.1:].eq("").all()
+    accel = steps["action_accel_mps2"].to_numpy()  # row k: t = k / 15 s
+    assert accel[round(0.9 * 15)] > 1.0 and accel[round(2.0 * 15)] < -2.0  # throttle, then brake, ramped
+    assert any(e["kind"] == "lane_change" for e in trial.events)
+    assert sorted(p.name for p in (trial.path / "screenshots").iterdir()) == [
+        "t0000.00s.png", "t0001.00s.png", "t0002.00s.png"]
+
+
+def test_the_adas_screenshot_differs_from_the_baseline_one_where_the_overlay_is(tmp_path):
+    adas, base = _drive(tmp_path, "adas", "--seed", "4"), _drive(tmp_path, "baseline", "--seed", "4")  # a tagged car ahead
+    a = np.asarray(Image.open(adas.path / "screenshots" / "t0001.00s.png").convert("RGB"))
+    b = np.asarray(Image.open(base.path / "screenshots" / "t0001.00s.png").convert("RGB"))
+    assert np.array_equal(adas.steps["x_m"], base.steps["x_m"])  # the same drive: only what is shown differs
+    shown = adas.steps["overlay_ids"].fillna("").astype(str).iloc[15]  # t = 1 s
+    assert shown  # marks were on screen at 1 s
+    diff = (a != b).any(axis=-1)
+    diff[:40, :220] = False  # the condition's name, top left
+    assert diff.sum() > 200
+    red = (a == MARK_RGB).all(axis=-1) | (a == 255).all(axis=-1)  # the marks' boxes, banners and their text
+    assert red[diff].mean() > 0.6
+    assert not diff[-60:].any()  # the HUD is the same
+
+
+def test_a_sigkilled_keyboard_trial_is_readable_and_aborted(tmp_path):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("0.1 down UP\n")
+    out = tmp_path / "s"
+    proc = subprocess.Popen([sys.executable, "-m", "dt_highway.cli", "drive", "--participant", "P02", "--condition",
+                             "baseline", "--duration", "60", "--out", str(out), "--keys-from", str(keys), *FAST],
+                            env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    steps = out / "trials" / "P02-baseline" / "steps.csv"
+    deadline = time.time() + 120
+    seen = 0.0
+    while time.time() < deadline and seen < 3.0:
+        time.sleep(0.2)
+        if steps.exists():
+            lines = steps.read_text().splitlines()
+            if len(lines) > 2:
+                try:
+                    seen = float(lines[-2].split(",")[0])
+                except ValueError:
+                    pass
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert seen >= 3.0
+    trial = load_trial(out / "trials" / "P02-baseline")
+    assert trial.meta["status"] == "aborted"
+    assert trial.steps["t_s"].max() >= seen - 1.0
+    assert [e["key"] for e in trial.events if e["kind"] == "key_down"] == ["UP"]
+
+
+def test_bad_drive_inputs_are_one_line(tmp_path, capsys):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0.5 press UP\n")
+    base = ["drive", "--condition", "adas", "--out", str(tmp_path / "s")]
+    assert main([*base, "--participant", "P01", "--keys-from", str(bad)]) == 2
+    assert "bad.txt:1: action must be 'down' or 'up'" in capsys.readouterr().err
+    assert main([*base, "--participant", "../x"]) == 2
+    assert "--participant must be" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
