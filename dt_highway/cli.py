@@ -37,6 +37,20 @@ def _seed(text: str) -> int:
     return value
 
 
+def _add_drive_args(p: argparse.ArgumentParser) -> None:
+    """Options shared by drive and session."""
+    _add_config_args(p, STUDY_SCENARIO)
+    p.add_argument("--participant", required=True, help="participant id, e.g. P01")
+    p.add_argument("--duration", type=_positive(float, "--duration"), help="trial length [s] (default: the scenario's)")
+    p.add_argument("--seed", type=_seed, default=0, help="traffic seed (default 0)")
+    p.add_argument("--keys-from", metavar="FILE", help="replay a key script ('0.5 down UP' lines) instead of the keyboard")
+    p.add_argument("--screenshot-every", type=_positive(float, "--screenshot-every"), metavar="S",
+                   help="save what the participant sees every S seconds of trial time")
+    p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
+    p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
+    p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
+
+
 def _add_config_args(p: argparse.ArgumentParser, default_scenario: str | None = None) -> None:
     p.add_argument("--scenario", metavar="FILE",
                    help=f"scenario TOML file (default {default_scenario})" if default_scenario
@@ -132,14 +146,14 @@ def cmd_study(args: argparse.Namespace) -> int:
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
-        scenario = find_file(args.scenario or STUDY_SCENARIO, "envs")
+        scenario = find_file_or_default(args.scenario)
         trials = args.trials or QUICK["trials"]
         overrides = [f"highway.duration={QUICK['duration_s']}", *args.overrides]
         out = args.out or "runs/quick-study"
     else:
         if not args.driver or not args.out:
             raise ConfigError("dt-highway study needs --driver FILE and --out DIR (or --quick)")
-        driver, scenario = find_file(args.driver, "agents"), find_file(args.scenario or STUDY_SCENARIO, "envs")
+        driver, scenario = find_file(args.driver, "agents"), find_file_or_default(args.scenario)
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     # bad driver files and configurations fail here, once, rather than in every trial
@@ -186,9 +200,19 @@ def _print_summary(path: Path) -> None:
 
 def cmd_drive(args: argparse.Namespace) -> int:
     """One keyboard trial in the driving window."""
-    from dt_highway.hmi.drive import DriveOptions, run_drive
+    from dt_highway.hmi.drive import run_drive
+
+    opts = _drive_options(args, args.condition)
+    result = run_drive(opts)
+    print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
+          + (f", {result['screenshots']} screenshots" if result["screenshots"] else ""))
+    return 0 if result["status"] == "completed" else 1
+
+
+def _drive_options(args: argparse.Namespace, condition: str) -> Any:
+    """The options of a keyboard trial from the command line (drive and session)."""
+    from dt_highway.hmi.drive import DriveOptions
     from dt_highway.hmi.keys import KeyScript, KeyScriptError
-    from dt_highway.study import find_file
 
     try:
         script = KeyScript.load(args.keys_from) if args.keys_from else None
@@ -196,16 +220,25 @@ def cmd_drive(args: argparse.Namespace) -> int:
         raise ConfigError(str(err)) from None
     if args.screenshots and not args.screenshot_every:
         raise ConfigError("--screenshots DIR needs --screenshot-every S")
-    opts = DriveOptions(
-        participant=_participant(args.participant), condition=args.condition, out=Path(args.out),
-        practice=args.practice, scenario=find_file(args.scenario or STUDY_SCENARIO, "envs"),
+    return DriveOptions(
+        participant=_participant(args.participant), condition=condition, out=Path(args.out),
+        practice=getattr(args, "practice", False), scenario=find_file_or_default(args.scenario),
         overrides=list(args.overrides), duration_s=args.duration, seed=args.seed, keys_from=script,
         screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
         fps=args.fps, minimap=not args.no_minimap)
-    result = run_drive(opts)
-    print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
-          + (f", {result['screenshots']} screenshots" if result["screenshots"] else ""))
-    return 0 if result["status"] == "completed" else 1
+
+
+def cmd_session(args: argparse.Namespace) -> int:
+    """A participant's session: practice, both conditions counterbalanced, breaks between."""
+    from dt_highway.hmi.session import condition_order, run_session
+
+    base = _drive_options(args, "baseline")
+    order = condition_order(base.participant)
+    print(f"session of {base.participant} in {base.out}: practice, then {order[0]} and {order[1]}")
+    results = run_session(base, args.practice_duration)
+    done = sum(r["status"] in ("completed", "skipped") for r in results)
+    print(f"{done} of 3 trials done" + ("" if done == 3 else ": run the same command again to go on"))
+    return 0 if done == 3 else 1
 
 
 def _participant(text: str) -> str:
@@ -309,6 +342,29 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_drive(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_drive
+
+    result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
+                         find_file_or_default(args.scenario), list(args.overrides))
+    if args.json:
+        print(dump_json(result))
+    else:
+        f = result["frame_ms"]
+        print(f"driving window {result['size_px'][0]}x{result['size_px'][1]}, {result['vehicles']} vehicles, "
+              f"{result['condition']}: {result['frames']} frames in {result['duration_s']:g} s ({result['fps']} FPS); "
+              f"frame time median {f['median']} ms, p90 {f['p90']} ms, p99 {f['p99']} ms, max {f['max']} ms "
+              f"(target p99 <= {result['target_p99_ms']:g} ms: {'met' if result['target_met'] else 'NOT met'})")
+    return 0
+
+
+def find_file_or_default(scenario: str | None) -> str:
+    """The scenario given, or the study's default one (``envs/highway-trial.toml``)."""
+    from dt_highway.study import find_file
+
+    return find_file(scenario or STUDY_SCENARIO, "envs")
+
+
 def cmd_bench_memory(args: argparse.Namespace) -> int:
     from dt_highway.bench import bench_memory
 
@@ -396,20 +452,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("drive", help="one keyboard trial in the driving window (first-person camera, AR overlay)")
-    _add_config_args(p, STUDY_SCENARIO)
-    p.add_argument("--participant", required=True, help="participant id, e.g. P01")
+    _add_drive_args(p)
     p.add_argument("--condition", required=True, choices=("baseline", "adas"), help="baseline or adas")
     p.add_argument("--practice", action="store_true", help="a practice trial (not in the report)")
-    p.add_argument("--duration", type=_positive(float, "--duration"), help="trial length [s] (default: the scenario's)")
-    p.add_argument("--seed", type=_seed, default=0, help="traffic seed (default 0)")
     p.add_argument("--out", required=True, help="study directory, e.g. runs/<study>")
-    p.add_argument("--keys-from", metavar="FILE", help="replay a key script ('0.5 down UP' lines) instead of the keyboard")
-    p.add_argument("--screenshot-every", type=_positive(float, "--screenshot-every"), metavar="S",
-                   help="save what the participant sees every S seconds of trial time")
-    p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
-    p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
-    p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
     p.set_defaults(func=cmd_drive)
+
+    p = sub.add_parser("session", help="a participant's session: practice, both conditions counterbalanced")
+    _add_drive_args(p)
+    p.add_argument("--out", default="runs/keyboard-study", help="study directory (default runs/keyboard-study)")
+    p.add_argument("--practice-duration", type=_positive(float, "--practice-duration"), default=60.0,
+                   help="practice trial length [s] (default 60)")
+    p.set_defaults(func=cmd_session)
 
     p = sub.add_parser("report", help="the safety-metrics report of a study directory")
     p.add_argument("study", help="study directory (runs/<name>)")
@@ -426,6 +480,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench_camera)
+    p = bsub.add_parser("drive", help="frame times of the driving window, headless (640x360, 50 vehicles, ADAS)")
+    _add_config_args(p, STUDY_SCENARIO)
+    p.add_argument("--duration", type=_positive(float, "--duration"), default=20.0, help="seconds of driving (default 20)")
+    p.add_argument("--vehicles", type=_positive(int, "--vehicles"), default=50, help="vehicles (default 50)")
+    p.add_argument("--width", type=_positive(int, "--width"), default=640, help="window width [px] (default 640)")
+    p.add_argument("--height", type=_positive(int, "--height"), default=360, help="window height [px] (default 360)")
+    p.add_argument("--condition", choices=("adas", "baseline"), default="adas", help="condition (default adas)")
+    p.add_argument("--seed", type=_seed, default=0, help="traffic seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench_drive)
     p = bsub.add_parser("fusion", help="time of one frame's fusion (Alg. 1 + 2 + tracking) per method, one core")
     p.add_argument("--frames", type=_positive(int, "--frames"), default=300, help="frames per method (default 300)")
     p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20, help="boxes and twin vehicles per frame (default 20)")

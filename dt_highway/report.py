@@ -4,7 +4,8 @@
 ``metrics.csv`` (one row per trial), ``summary.json`` (per condition: n, mean, SD and 95 %
 CI of each metric; paired tests between conditions) and a self-contained ``report.html``
 (plots embedded as PNG). Only completed trials enter the statistics; aborted ones are
-listed. Pairs are trials with the same pair number (scripted drivers) or participant.
+listed; practice trials are left out. Pairs are trials with the same pair number (scripted
+drivers) or participant (keyboard trials).
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ def collect(study_dir: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     for d in dirs:
         trial = load_trial(d)
         meta = trial.meta
+        if meta.get("practice"):
+            continue  # practice trials are not data
         cuts = trial.cut_ins
         row = {"trial": d.name, "condition": meta.get("condition"), "pair": meta.get("pair"),
                "participant": meta.get("participant"), "driver": meta.get("driver"), "seed": meta.get("seed"),

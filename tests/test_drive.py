@@ -100,3 +100,37 @@ def test_bad_drive_inputs_are_one_line(tmp_path, capsys):
     assert main([*base, "--participant", "../x"]) == 2
     assert "--participant must be" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_condition_order_is_counterbalanced_by_participant():
+    from dt_highway.hmi.session import condition_order
+
+    assert condition_order("P01") == ("baseline", "adas") and condition_order("P02") == ("adas", "baseline")
+    assert condition_order("anna") == condition_order("anna") and set(condition_order("anna")) == {"baseline", "adas"}
+
+
+def test_a_session_runs_practice_and_both_conditions_resumes_and_reports_by_participant(tmp_path, capsys):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("0.1 down UP\n0.8 up UP\n")
+    out = tmp_path / "study"
+    args = ["--duration", "1.5", "--practice-duration", "1", "--out", str(out), "--keys-from", str(keys), *FAST]
+    for p in ("P01", "P02"):
+        assert main(["session", "--participant", p, *args]) == 0
+    trials = sorted(d.name for d in (out / "trials").iterdir())
+    assert trials == ["P01-adas", "P01-baseline", "P01-practice", "P02-adas", "P02-baseline", "P02-practice"]
+    practice = load_trial(out / "trials" / "P02-practice")
+    assert practice.meta["practice"] and practice.meta["condition"] == "adas"  # P02 starts with ADAS
+    assert practice.meta["seed"] == 1000 and load_trial(out / "trials" / "P02-adas").meta["seed"] == 0
+    # a trial that was killed reads as aborted: the session runs it again, and only it
+    meta = out / "trials" / "P01-adas" / "meta.json"
+    m = json.loads(meta.read_text())
+    meta.write_text(json.dumps({**m, "status": "running", "pid": 2 ** 22 + 12345}))
+    capsys.readouterr()
+    assert main(["session", "--participant", "P01", *args]) == 0
+    said = capsys.readouterr().out
+    assert "P01-practice: already completed, skipped" in said and "P01-baseline: already completed" in said
+    assert "P01-adas: completed" in said
+    assert main(["report", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["conditions"]["baseline"]["n"] == 2 and summary["conditions"]["adas"]["n"] == 2  # no practice
+    assert summary["paired_tests"]["speed_mean_kmh"]["n_pairs"] == 2

@@ -172,6 +172,36 @@ class DriveOptions:
     minimap: bool = True
 
 
+def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: float | None = None) -> bool:
+    """Show a screen (e.g. a break between trials) until Enter is pressed.
+
+    :param size: window size ``(width, height)`` [px]
+    :param timeout_s: give up waiting after this long (``None``: wait for Enter)
+    :return: ``False`` when the participant pressed Esc or closed the window
+    """
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    import pygame
+
+    pygame.display.init()
+    try:
+        screen = pygame.display.set_mode(size)
+        img = card(size, title, lines)
+        screen.blit(pygame.image.frombuffer(img.tobytes(), size, "RGB"), (0, 0))
+        pygame.display.flip()
+        t_end = None if timeout_s is None else time.monotonic() + timeout_s
+        clock = pygame.time.Clock()
+        while t_end is None or time.monotonic() < t_end:
+            for ev in pygame.event.get():
+                if ev.type == pygame.QUIT or (ev.type == pygame.KEYDOWN and ev.key == pygame.K_ESCAPE):
+                    return False
+                if ev.type == pygame.KEYDOWN and ev.key in (pygame.K_RETURN, pygame.K_KP_ENTER):
+                    return True
+            clock.tick(30)
+        return True
+    finally:
+        pygame.quit()
+
+
 PYGAME_KEYS = {"UP": "K_UP", "DOWN": "K_DOWN", "LEFT": "K_LEFT", "RIGHT": "K_RIGHT", "P": "K_p", "ESC": "K_ESCAPE",
                "M": "K_m"}
 
@@ -187,7 +217,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     :param opts: the trial
     :param on_frame: called with every composed frame (tests, recording)
     :return: ``directory``, ``status`` (``completed`` or ``aborted``), ``end_reason``,
-        ``frames`` drawn, ``screenshots`` saved
+        ``frames`` drawn, ``screenshots`` saved, ``frame_ms``: each frame's work (events, the
+        simulation steps due, composing and showing it; not the wait for the next frame) [ms]
     """
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     import gymnasium as gym
@@ -239,6 +270,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
             "config": cfg.to_dict(), "simulation_frequency_hz": f_sim}
     frames, shots = 0, 0
+    frame_ms: list[float] = []
     end_reason, status = "time limit", "completed"
     try:
         if not scripted:
@@ -300,6 +332,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
 
             names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
             while not done:
+                frame_t0 = time.perf_counter()
                 for ev in pygame.event.get():
                     if ev.type == pygame.QUIT:
                         done, end_reason, status = True, "window closed", "aborted"
@@ -344,6 +377,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                     cv2.imwrite(str(shots_dir / f"t{t_sim:07.2f}s.png"), img[..., ::-1])
                     shots += 1
                     next_shot += opts.screenshot_every_s or math.inf
+                frame_ms.append((time.perf_counter() - frame_t0) * 1e3)
                 clock.tick(opts.fps)
             log.meta["end_reason"] = end_reason
             if status != "completed":
@@ -354,4 +388,4 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         env.close()
         pygame.quit()
     return {"directory": str(directory), "status": status, "end_reason": end_reason, "frames": frames,
-            "screenshots": shots}
+            "screenshots": shots, "frame_ms": frame_ms, "size_px": list(size)}
