@@ -117,15 +117,20 @@ def _label_lines(item: dict[str, Any]) -> tuple[str, str]:
     return head, "  ".join(parts)
 
 
-def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple[int, int, int] = MARK_RGB) -> np.ndarray:
+def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
+                 full_labels: int = 2, label_range_m: float = 60.0) -> np.ndarray:
     """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label above it
     ("AGGRESSIVE DRIVER", confidence and distance) on a filled banner, sized to the image.
     The nearest vehicle's label sits just above its box; labels that would cover another
-    one are moved up and joined to their box by a line.
+    one are moved up and joined to their box by a line. So that a glance is enough, only
+    the ``full_labels`` nearest marks within ``label_range_m`` get the full label; the others
+    get a small "!" tag.
 
     :param rgb: ``uint8 (H, W, 3)`` RGB frame
     :param items: marks (:meth:`OverlayStabilizer.update` or ``info["adas"]["overlay"]``)
     :param colour: the marks' colour (RGB)
+    :param full_labels: most marks with the full label [-]
+    :param label_range_m: farthest distance of a full label [m]
     :return: the annotated frame (same shape)
     """
     out = np.ascontiguousarray(rgb).copy()
@@ -135,6 +140,7 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple
     font = cv2.FONT_HERSHEY_DUPLEX
     placed: list[tuple[int, int, int, int]] = []
     banners = []
+    n_full = 0
     for item in sorted(items, key=lambda it: float(it.get("distance_m") or 0.0)):  # nearest first
         x1, y1, x2, y2 = (float(v) for v in item["box"])
         if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= w or y1 >= h:
@@ -142,7 +148,12 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple
         p1 = (int(round(max(x1, 0))), int(round(max(y1, 0))))
         p2 = (int(round(min(x2, w - 1))), int(round(min(y2, h - 1))))
         cv2.rectangle(out, p1, p2, colour, thick, cv2.LINE_AA)
-        head, sub = _label_lines(item)
+        dist = float(item.get("distance_m") or 0.0)
+        if n_full < full_labels and (not math.isfinite(dist) or dist <= label_range_m):
+            head, sub = _label_lines(item)
+            n_full += 1
+        else:
+            head, sub = "!", ""
         fs_head, fs_sub = 0.9 * scale, 0.75 * scale
         (tw1, th1), _ = cv2.getTextSize(head, font, fs_head, thick)
         (tw2, th2), _ = cv2.getTextSize(sub, font, fs_sub, max(1, thick - 1)) if sub else ((0, 0), 0)
