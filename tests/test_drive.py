@@ -134,3 +134,20 @@ def test_a_session_runs_practice_and_both_conditions_resumes_and_reports_by_part
     summary = json.loads((out / "summary.json").read_text())
     assert summary["conditions"]["baseline"]["n"] == 2 and summary["conditions"]["adas"]["n"] == 2  # no practice
     assert summary["paired_tests"]["speed_mean_kmh"]["n_pairs"] == 2
+
+
+def test_pause_stops_the_trial_clock_and_esc_quits_as_aborted(tmp_path):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("0.5 down P\n0.6 up P\n1.5 down P\n1.6 up P\n")  # paused for 1 s of wall time
+    out = tmp_path / "s"
+    base = ["drive", "--participant", "P03", "--duration", "1.5", "--out", str(out), "--keys-from", str(keys), *FAST]
+    t0 = time.monotonic()
+    assert main([*base, "--condition", "baseline"]) == 0
+    assert time.monotonic() - t0 > 2.3  # 1.5 s of driving + 1 s of pause (+ set-up)
+    trial = load_trial(out / "trials" / "P03-baseline")
+    assert trial.meta["status"] == "completed" and len(trial.steps) == 24  # 1 + ceil(1.5 * 15): the pause added none
+    keys.write_text("0.5 down UP\n1.0 down ESC\n")
+    assert main([*base, "--condition", "adas"]) == 1
+    quit_ = load_trial(out / "trials" / "P03-adas")
+    assert quit_.meta["status"] == "aborted" and quit_.meta["end_reason"] == "quit by the participant"
+    assert quit_.steps["t_s"].max() == pytest.approx(1.0)
