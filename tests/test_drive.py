@@ -151,3 +151,33 @@ def test_pause_stops_the_trial_clock_and_esc_quits_as_aborted(tmp_path):
     quit_ = load_trial(out / "trials" / "P03-adas")
     assert quit_.meta["status"] == "aborted" and quit_.meta["end_reason"] == "quit by the participant"
     assert quit_.steps["t_s"].max() == pytest.approx(1.0)
+
+
+def test_the_interactive_path_start_screen_keys_and_esc_with_confirmation(tmp_path):
+    """Without a script: the start screen waits for Enter, keys come from pygame's events, the
+    first Esc asks, the second quits; events are posted as a person would press the keys."""
+    import pygame
+
+    from dt_highway.hmi.drive import DriveOptions, run_drive
+
+    plan = {1: (pygame.KEYDOWN, pygame.K_RETURN), 2: (pygame.KEYDOWN, pygame.K_RETURN),
+            3: (pygame.KEYDOWN, pygame.K_RETURN), 4: (pygame.KEYDOWN, pygame.K_RETURN),
+            10: (pygame.KEYDOWN, pygame.K_UP), 25: (pygame.KEYUP, pygame.K_UP),
+            30: (pygame.KEYDOWN, pygame.K_ESCAPE), 34: (pygame.KEYDOWN, pygame.K_ESCAPE)}
+    shown = []
+
+    def press(img):
+        shown.append(img)
+        kind, key = plan.get(len(shown), (pygame.KEYDOWN, pygame.K_RETURN) if len(shown) > 40 else (None, None))
+        if kind is not None:
+            pygame.event.post(pygame.event.Event(kind, key=key))
+
+    overrides = [a for a in FAST if a not in ("--set", "--no-minimap")]
+    result = run_drive(DriveOptions("P04", "adas", tmp_path / "s", scenario="envs/highway-trial.toml",
+                                    overrides=overrides, duration_s=30.0), on_frame=press)
+    assert result["status"] == "aborted" and result["end_reason"] == "quit by the participant"
+    trial = load_trial(tmp_path / "s" / "trials" / "P04-adas")
+    assert [(e["kind"], e["key"]) for e in trial.events if e["kind"].startswith("key_")] == [
+        ("key_down", "UP"), ("key_up", "UP"), ("key_down", "ESC"), ("key_down", "ESC")]
+    assert trial.meta["status"] == "aborted" and trial.steps["t_s"].max() < 30
+    assert (trial.steps["keys"].fillna("") == "UP").any()

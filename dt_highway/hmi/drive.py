@@ -275,6 +275,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     frame_ms: list[float] = []
     end_reason, status = "time limit", "completed"
     try:
+        # the traffic and the twin's listening time are prepared while the participant reads the keys
+        if not scripted:
+            show(card(size, "Preparing the trial...", []))
+        obs, info = env.reset(seed=opts.seed)
         if not scripted:
             legend = [f"{k:14s} {v}" for k, v in LEGEND]
             if wait_key(card(size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
@@ -284,7 +288,6 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             for n in (3, 2, 1):
                 wait_key(card(size, str(n), ["get ready"]), (), 1.0)
         with TrialWriter(directory, meta) as log:
-            obs, info = env.reset(seed=opts.seed)
             rec = TrialRecorder(log)
             pedals = Pedals()
             held: set[str] = set()
