@@ -49,6 +49,7 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
     p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
     p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
+    p.add_argument("--steering", action="store_true", help="Left/Right steer (self-centring) instead of changing lanes")
 
 
 def _add_config_args(p: argparse.ArgumentParser, default_scenario: str | None = None) -> None:
@@ -225,7 +226,7 @@ def _drive_options(args: argparse.Namespace, condition: str) -> Any:
         practice=getattr(args, "practice", False), scenario=find_file_or_default(args.scenario),
         overrides=list(args.overrides), duration_s=args.duration, seed=args.seed, keys_from=script,
         screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
-        fps=args.fps, minimap=not args.no_minimap)
+        fps=args.fps, minimap=not args.no_minimap, steering=args.steering)
 
 
 def cmd_session(args: argparse.Namespace) -> int:

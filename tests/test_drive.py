@@ -181,3 +181,15 @@ def test_the_interactive_path_start_screen_keys_and_esc_with_confirmation(tmp_pa
         ("key_down", "UP"), ("key_up", "UP"), ("key_down", "ESC"), ("key_down", "ESC")]
     assert trial.meta["status"] == "aborted" and trial.steps["t_s"].max() < 30
     assert (trial.steps["keys"].fillna("") == "UP").any()
+
+
+def test_steering_mode_steers_the_ego_across_the_lane(tmp_path):
+    keys = tmp_path / "keys.txt"
+    keys.write_text("0.2 down RIGHT\n1.2 up RIGHT\n")
+    out = tmp_path / "s"
+    assert main(["drive", "--participant", "P05", "--condition", "baseline", "--duration", "2", "--out", str(out),
+                 "--keys-from", str(keys), "--steering", *FAST]) == 0
+    steps = load_trial(out / "trials" / "P05-baseline").steps
+    steer = steps["action_lane"].to_numpy()  # the steering command in steering mode
+    assert steer[:3].max() == 0.0 and steer[round(1.2 * 15)] == pytest.approx(1.0) and steer[-1] == 0.0
+    assert steps["y_m"].iloc[-1] > steps["y_m"].iloc[0] + 1.0  # drifted right: no lane keeping pulled it back

@@ -45,3 +45,14 @@ def test_bad_key_scripts_name_the_line(text, message):
 def test_a_missing_key_script_is_one_line(tmp_path):
     with pytest.raises(KeyScriptError, match="cannot read the key script"):
         KeyScript.load(tmp_path / "none.txt")
+
+
+def test_steering_ramps_self_centres_and_countersteers_quickly():
+    from dt_highway.hmi import Steering
+
+    w = Steering(rate_per_s=1.0, centring_per_s=2.0)
+    assert w.update(False, True, 0.5) == pytest.approx(0.5)  # right, 1 /s
+    assert w.update(False, True, 1.0) == pytest.approx(1.0)  # full lock
+    assert w.update(False, False, 0.25) == pytest.approx(0.5)  # released: centring, 2 /s
+    assert w.update(True, False, 0.1) == pytest.approx(0.2)  # countersteer: 3 /s
+    assert w.update(True, True, 1.0) == 0.0  # both: centre

@@ -37,6 +37,8 @@ class DrivenVehicle(ControlledVehicle):
         super().__init__(road, position, heading, speed, target_lane_index, target_speed, route)
         self.accel_command_mps2 = 0.0
         self.lane_change_requests = 0
+        self.steering_command_rad: float | None = None
+        """A steering angle set by the driver [rad]; ``None``: highway-env's lane keeping steers"""
 
     def command(self, accel_mps2: float, lane_change: int = 0) -> None:
         """Set the pedals and, optionally, ask for a lane change.
@@ -60,9 +62,13 @@ class DrivenVehicle(ControlledVehicle):
         on the pedals (called by highway-env at every simulation step)."""
         if isinstance(action, dict):
             self.command(action.get("acceleration", self.accel_command_mps2), action.get("lane_change", 0))
-        self.follow_road()
-        steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
-                                 self.MAX_STEERING_ANGLE))
+        if self.steering_command_rad is not None:  # the driver steers: no lane keeping
+            self.target_lane_index = self.lane_index
+            steering = self.steering_command_rad
+        else:
+            self.follow_road()
+            steering = self.steering_control(self.target_lane_index)
+        steering = float(np.clip(steering, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
         accel = self.accel_command_mps2
         if self.speed <= 0.0:
             accel = max(accel, 0.0)
@@ -72,16 +78,25 @@ class DrivenVehicle(ControlledVehicle):
 class DriverAction(ActionType):
     """Action ``[acceleration, lane]``: acceleration [m/s^2] in ``[accel_min, accel_max]``
     and a lane request in ``[-1, 1]`` (<= -0.5: one lane left, >= 0.5: one lane right).
+    With ``steering = true`` the second value steers instead: ``[-1, 1]`` times
+    ``steering_max_rad`` (positive to the right), and the ego keeps no lane by itself.
 
     :param env: the env
     :param accel_min_mps2: hardest braking [m/s^2]
     :param accel_max_mps2: strongest acceleration [m/s^2]
+    :param steering: the second value is a steering command, not a lane request
+    :param steering_max_rad: steering angle at full lock [rad]
     """
 
     def __init__(self, env: Any, accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
-                 **kwargs: Any) -> None:
+                 steering: bool = False, steering_max_rad: float = 0.05, **kwargs: Any) -> None:
         if kwargs:
-            raise ValueError(f"the Driver action takes accel_min_mps2 and accel_max_mps2 only (got {sorted(kwargs)})")
+            raise ValueError(f"the Driver action takes accel_min_mps2, accel_max_mps2, steering and steering_max_rad "
+                             f"only (got {sorted(kwargs)})")
+        if not 0 < steering_max_rad <= 1.0:
+            raise ValueError(f"the Driver action needs 0 < steering_max_rad <= 1 rad (got {steering_max_rad})")
+        self.steering = bool(steering)
+        self.steering_max_rad = float(steering_max_rad)
         if not accel_min_mps2 < 0 < accel_max_mps2:
             raise ValueError(f"the Driver action needs accel_min_mps2 < 0 < accel_max_mps2 "
                              f"(got {accel_min_mps2}, {accel_max_mps2})")
@@ -101,6 +116,12 @@ class DriverAction(ActionType):
         a = np.asarray(action, dtype=float).reshape(-1)
         if a.shape != (2,) or not np.isfinite(a).all():
             raise ValueError(f"a Driver action is [acceleration m/s^2, lane -1..1] (got {action!r})")
+        accel = float(np.clip(a[0], self.accel_min_mps2, self.accel_max_mps2))
+        if self.steering:
+            self.controlled_vehicle.steering_command_rad = float(np.clip(a[1], -1.0, 1.0)) * self.steering_max_rad
+            self.controlled_vehicle.command(accel, 0)
+            self.last_action = a
+            return
         lane = -1 if a[1] <= -0.5 else (1 if a[1] >= 0.5 else 0)
-        self.controlled_vehicle.command(float(np.clip(a[0], self.accel_min_mps2, self.accel_max_mps2)), lane)
+        self.controlled_vehicle.command(accel, lane)
         self.last_action = a

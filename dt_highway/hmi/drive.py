@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from dt_highway.config import ConfigError, load_config
-from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals
+from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
 from dt_highway.overlay import draw_overlay
 
 CONDITIONS = ("baseline", "adas")
@@ -43,7 +43,7 @@ LEGEND = (
 """The keys, as shown before a trial"""
 
 
-def drive_config(condition: str) -> dict[str, Any]:
+def drive_config(condition: str, steering: bool = False) -> dict[str, Any]:
     """What a keyboard trial changes in the configuration: the ``Driver`` action with one
     decision per simulation step (the keys act at once), the camera in both conditions (it is
     the participant's view, and the observation), the fusion and its overlay in ``adas`` only."""
@@ -51,7 +51,8 @@ def drive_config(condition: str) -> dict[str, Any]:
         raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
     # the window shows the camera frame: as observation it costs nothing more (one rendering
     # per step), where highway-env's Kinematics table would cost ~10 ms a step with 50 vehicles
-    return {"highway": {"action": {"type": "Driver"}, "observation": {"type": "Camera"}}, "camera": {"enabled": True},
+    action: dict[str, Any] = {"type": "Driver", "steering": True} if steering else {"type": "Driver"}
+    return {"highway": {"action": action, "observation": {"type": "Camera"}}, "camera": {"enabled": True},
             "fusion": {"enabled": condition == "adas"}}
 
 
@@ -157,6 +158,7 @@ class DriveOptions:
     :param screenshots: where screenshots go (default ``<trial>/screenshots``)
     :param fps: most window frames per second
     :param minimap: show the mini-map at the start
+    :param steering: Left/Right steer (self-centring) instead of changing lanes
     """
 
     participant: str
@@ -172,6 +174,7 @@ class DriveOptions:
     screenshots: Path | None = None
     fps: int = 60
     minimap: bool = True
+    steering: bool = False
 
 
 def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: float | None = None) -> bool:
@@ -232,9 +235,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     overrides = list(opts.overrides)
     if opts.duration_s is not None:
         overrides.append(f"highway.duration={opts.duration_s}")
-    cfg = load_config(opts.scenario, overrides, drive_config(opts.condition))
+    cfg = load_config(opts.scenario, overrides, drive_config(opts.condition, opts.steering))
     f_sim = cfg.highway.simulation_frequency
-    cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"], drive_config(opts.condition))
+    cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"],
+                      drive_config(opts.condition, opts.steering))
     directory = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
     shots_dir = opts.screenshots or directory / "screenshots"
     scripted = opts.keys_from is not None
@@ -290,6 +294,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         with TrialWriter(directory, meta) as log:
             rec = TrialRecorder(log)
             pedals = Pedals()
+            wheel = Steering()
             held: set[str] = set()
             lane_tap = 0
             dt = 1.0 / f_sim
@@ -325,7 +330,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                     if paused:
                         paused, paused_s = False, paused_s + time.monotonic() - pause_start
                     return
-                if ev.key in ("LEFT", "RIGHT"):
+                if ev.key in ("LEFT", "RIGHT") and not opts.steering:
                     lane_tap = -1 if ev.key == "LEFT" else 1
                 elif ev.key == "P":
                     if paused:
@@ -357,7 +362,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                         if done or paused:
                             break
                     accel = pedals.update("UP" in held, "DOWN" in held, dt)
-                    action = np.array([accel, float(lane_tap)])
+                    if opts.steering:
+                        action = np.array([accel, wheel.update("LEFT" in held, "RIGHT" in held, dt)])
+                    else:
+                        action = np.array([accel, float(lane_tap)])
                     lane_tap = 0
                     obs, _, terminated, truncated, info = env.step(action)
                     n_steps += 1

@@ -88,6 +88,38 @@ class Pedals:
         return self.accel_mps2
 
 
+class Steering:
+    """A self-centring steering command from the Left/Right keys held, in ``[-1, 1]``
+    (positive to the right; the ``"Driver"`` action scales it to an angle).
+
+    :param rate_per_s: how fast the command moves towards full lock while a key is held [1/s]
+    :param centring_per_s: how fast it returns to 0 when no key is held [1/s]
+    """
+
+    def __init__(self, rate_per_s: float = 1.5, centring_per_s: float = 3.0) -> None:
+        self.rate_per_s = rate_per_s
+        self.centring_per_s = centring_per_s
+        self.command = 0.0
+
+    def reset(self) -> None:
+        """Wheel centred."""
+        self.command = 0.0
+
+    def update(self, left: bool, right: bool, dt_s: float) -> float:
+        """Advance by ``dt_s`` with these keys held (both or neither: back to the centre).
+
+        :return: the steering command in ``[-1, 1]``
+        """
+        target = (1.0 if right else 0.0) - (1.0 if left else 0.0)
+        rate = self.rate_per_s if target != 0.0 and (target * self.command >= 0.0) else self.centring_per_s
+        if target != 0.0 and target * self.command < 0.0:
+            rate = self.centring_per_s + self.rate_per_s  # countersteering is quick
+        step = rate * max(dt_s, 0.0)
+        c = self.command
+        self.command = min(c + step, target) if c < target else max(c - step, target)
+        return self.command
+
+
 @dataclass(frozen=True)
 class KeyEvent:
     """One key press or release.
