@@ -154,6 +154,9 @@ class TrafficConfig(_Section):
         description="False: stock highway-env traffic (its spawning, plain IDMVehicle NPCs, no recycling)",
     )
     recycle: bool = Field(True, description="re-enter NPCs that drift far from the ego, remove crashed ones")
+    fast_road: bool = Field(
+        True, description="vectorised neighbour search and collision broad phase (same results as highway-env's Road)"
+    )
     crashed_removal_s: float = Field(5.0, gt=0, description="a crashed NPC is towed away after this long [s]")
     population_size: int = Field(
         300, ge=1, description="distinct drivers (stable ids) the NPCs are drawn from [-]"

@@ -37,6 +37,7 @@ from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
 from dt_highway.drivers.control import DriverAction
+from dt_highway.fastroad import FastRoad
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.safety import SafetyMonitor
 from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
@@ -391,7 +392,8 @@ class DTHighwayEnv(HighwayEnv):
 
     def _create_road(self) -> None:
         hw = self.dt_config.highway
-        self.road = Road(
+        road_class = FastRoad if self.dt_config.traffic.fast_road else Road
+        self.road = road_class(
             network=RoadNetwork.straight_road_network(hw.lanes_count, length=hw.road_length, speed_limit=hw.speed_limit),
             np_random=self.np_random,
             record_history=self.config["show_trajectories"],

@@ -1,0 +1,62 @@
+"""FastRoad gives highway-env's Road results: the same neighbours, collisions and trajectories."""
+
+import gymnasium as gym
+import numpy as np
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.kinematics import Vehicle
+
+import dt_highway  # noqa: F401  (registers the env)
+from dt_highway.config import load_config
+from dt_highway.fastroad import FastRoad
+
+
+def _roads(seed):
+    rng = np.random.default_rng(seed)
+    net = RoadNetwork.straight_road_network(3, length=1000.0)
+    fast, stock = FastRoad(network=net), Road(network=net)
+    vehicles = []
+    for k in range(40):
+        lane = int(rng.integers(3))
+        x = float(rng.choice([100.0, 130.0])) if k < 6 else float(rng.uniform(0, 400))  # ties at 100 and 130 m
+        y = lane * 4.0 + float(rng.normal(0, 0.8))  # some between lanes
+        vehicles.append(Vehicle(fast, [x, y], 0.0, 25.0))
+    fast.vehicles = vehicles
+    stock.vehicles = vehicles
+    return fast, stock, vehicles
+
+
+def test_neighbours_are_highway_envs_ties_included():
+    for seed in range(5):
+        fast, stock, vehicles = _roads(seed)
+        for v in vehicles:
+            for lane in range(3):
+                idx = ("0", "1", lane)
+                assert fast.neighbour_vehicles(v, idx) == stock.neighbour_vehicles(v, idx)
+            assert fast.neighbour_vehicles(v) == stock.neighbour_vehicles(v)
+
+
+def _run(fast: bool, extra=(), seconds=10.0):
+    cfg = load_config("envs/highway-trial.toml", [f"traffic.fast_road={str(fast).lower()}", "highway.vehicles_count=30",
+                                                   "twin.preroll_s=5", f"highway.duration={seconds}", *extra],
+                      {"highway": {"action": {"type": "Driver"}}})
+    env = gym.make("dt-highway-v0", config=cfg.to_dict())
+    u = env.unwrapped
+    env.reset(seed=2)
+    crashed_at = None
+    for k in range(int(seconds * cfg.highway.policy_frequency)):
+        _, _, term, trunc, _ = env.step(np.array([3.0, 0.0]))  # full throttle: the ego runs into its leader
+        if u.vehicle.crashed and crashed_at is None:
+            crashed_at = k
+        if term or trunc:
+            break
+    return {getattr(v, "dt_id", i): (v.position.copy(), v.speed, v.crashed) for i, v in enumerate(u.road.vehicles)}, crashed_at
+
+
+def test_trajectories_and_collisions_are_the_same_as_with_highway_envs_road():
+    for extra in ((), ("traffic.driver_types=false",)):
+        fast, crash_fast = _run(True, extra)
+        stock, crash_stock = _run(False, extra)
+        assert crash_fast == crash_stock and crash_fast is not None  # the collision happens, at the same step
+        assert fast.keys() == stock.keys()
+        for vid in fast:
+            assert np.array_equal(fast[vid][0], stock[vid][0]) and fast[vid][1:] == stock[vid][1:]
