@@ -353,9 +353,11 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
     else:
         f = result["frame_ms"]
         print(f"driving window {result['size_px'][0]}x{result['size_px'][1]}, {result['vehicles']} vehicles, "
-              f"{result['condition']}: {result['frames']} frames in {result['duration_s']:g} s ({result['fps']} FPS); "
+              f"{result['condition']}: {result['frames']} frames in {result['wall_s']:g} s ({result['fps']} FPS), "
+              f"{result['sim_s']:g} s simulated (real-time factor {result['realtime_factor']}, {result['end_reason']}); "
               f"frame time median {f['median']} ms, p90 {f['p90']} ms, p99 {f['p99']} ms, max {f['max']} ms "
-              f"(target p99 <= {result['target_p99_ms']:g} ms: {'met' if result['target_met'] else 'NOT met'})")
+              f"(targets p99 <= {result['target_p99_ms']:g} ms and >= 30 FPS: "
+              f"{'met' if result['target_met'] else 'NOT met'})")
     return 0
 
 

@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import math
 import os
+import queue
+import sys
+import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -216,20 +219,182 @@ def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Pa
     return Path(out) / "trials" / f"{participant}-{'practice' if practice else condition}"
 
 
+@dataclass
+class _Snapshot:
+    """What the window shows of one simulation step (made by the simulation thread)."""
+
+    rgb: np.ndarray
+    marks: list[dict[str, Any]] | None
+    hud: Hud
+    minimap: np.ndarray | None
+    n_steps: int
+
+
+class _Trial:
+    """The simulation side of a keyboard trial: runs in its own thread, locked to the wall
+    clock, and hands the window a snapshot after every simulation step.
+
+    Every write to the trial log happens on this thread; the window only reads snapshots and
+    posts key events.
+    """
+
+    def __init__(self, env: Any, log: Any, opts: DriveOptions, label: str, info: dict[str, Any],
+                 shots_dir: Path) -> None:
+        from dt_highway.study import TrialRecorder
+
+        self.env, self.u, self.log, self.opts, self.label = env, env.unwrapped, log, opts, label
+        self.cfg_fusion = self.u.dt_config.fusion.enabled
+        self.f_sim = self.u.dt_config.highway.simulation_frequency
+        self.duration = self.u.dt_config.highway.duration
+        self.dt = 1.0 / self.f_sim
+        self.rec = TrialRecorder(log)
+        self.pedals, self.wheel = Pedals(), Steering()
+        self.held: set[str] = set()
+        self.lane_tap = 0
+        self.n_steps = 0
+        self.info = info
+        self.paused = self.confirm_quit = False
+        self.show_map = opts.minimap
+        self.done = False
+        self.end_reason, self.status = "time limit", "completed"
+        self.error: BaseException | None = None
+        self.keys_in: queue.SimpleQueue[tuple[bool, str]] = queue.SimpleQueue()
+        self.lock = threading.Lock()
+        self.snapshot: _Snapshot | None = None
+        self.shots_dir = shots_dir
+        self.next_shot = 0.0 if opts.screenshot_every_s else math.inf
+        self.shots = 0
+        self._paused_s = 0.0
+        self._pause_start = 0.0
+        self.rec.record(info, np.array([self.pedals.accel_mps2, 0.0]), "")
+        self._publish()
+
+    @property
+    def t_sim(self) -> float:
+        """Trial time [s]."""
+        return self.n_steps * self.dt
+
+    # ---------------------------------------------------------------- keys
+    def _toggle_pause(self, on: bool) -> None:
+        if on and not self.paused:
+            self.paused, self._pause_start = True, time.monotonic()
+        elif not on and self.paused:
+            self.paused = False
+            self._paused_s += time.monotonic() - self._pause_start
+
+    def key_event(self, ev: KeyEvent) -> None:
+        """Log a key press or release and act on it."""
+        self.log.event("key_down" if ev.down else "key_up", ev.t_s, key=ev.key)
+        if not ev.down:
+            self.held.discard(ev.key)
+            return
+        self.held.add(ev.key)
+        scripted = self.opts.keys_from is not None
+        if ev.key == "ESC":
+            if self.confirm_quit or scripted:
+                self.stop("quit by the participant")
+            else:
+                self.confirm_quit = True
+                self._toggle_pause(True)
+        elif self.confirm_quit:  # any other key: go on
+            self.confirm_quit = False
+            self._toggle_pause(False)
+        elif ev.key in ("LEFT", "RIGHT") and not self.opts.steering:
+            self.lane_tap = -1 if ev.key == "LEFT" else 1
+        elif ev.key == "P":
+            self._toggle_pause(not self.paused)
+        elif ev.key == "M":
+            self.show_map = not self.show_map
+
+    def stop(self, reason: str, status: str = "aborted") -> None:
+        """End the trial."""
+        if not self.done:
+            self.done, self.end_reason, self.status = True, reason, status
+
+    # ---------------------------------------------------------------- simulation
+    def _publish(self) -> None:
+        u = self.u
+        ego = u.vehicle
+        hud = Hud(float(ego.speed) * 3.6, int(ego.lane_index[2]) + 1,
+                  len(u.road.network.graph[ego.lane_index[0]][ego.lane_index[1]]), self.duration - self.t_sim,
+                  self.label, self.paused)
+        marks = (self.info.get("adas") or {}).get("overlay") if self.cfg_fusion else None
+        snap = _Snapshot(u.camera_frame().rgb, marks, hud, self.env.render() if self.show_map else None, self.n_steps)
+        with self.lock:
+            self.snapshot = snap
+        if self.t_sim + 1e-9 >= self.next_shot:  # what the window shows of this step, saved
+            self.shots_dir.mkdir(parents=True, exist_ok=True)
+            img = compose_frame(snap.rgb, snap.marks, snap.hud, snap.minimap)
+            cv2.imwrite(str(self.shots_dir / f"t{self.t_sim:07.2f}s.png"), img[..., ::-1])
+            self.shots += 1
+            self.next_shot += self.opts.screenshot_every_s or math.inf
+
+    def _step(self) -> None:
+        held = self.held
+        accel = self.pedals.update("UP" in held, "DOWN" in held, self.dt)
+        if self.opts.steering:
+            action = np.array([accel, self.wheel.update("LEFT" in held, "RIGHT" in held, self.dt)])
+        else:
+            action = np.array([accel, float(self.lane_tap)])
+        self.lane_tap = 0
+        _, _, terminated, truncated, self.info = self.env.step(action)
+        self.n_steps += 1
+        self.rec.record(self.info, action, ";".join(sorted(held)))
+        if terminated or truncated:
+            self.stop("collision" if self.u.vehicle.crashed else "time limit", "completed")
+        self._publish()
+
+    def run(self) -> None:
+        """The simulation loop (thread body): keys, then the steps the wall clock asks for."""
+        script = self.opts.keys_from
+        wall0 = time.monotonic()
+        try:
+            while not self.done:
+                while True:
+                    try:
+                        down, key = self.keys_in.get_nowait()
+                    except queue.Empty:
+                        break
+                    self.key_event(KeyEvent(self.t_sim, down, key))
+                if script is not None and self.paused:  # a script's pause lasts in wall time
+                    for ev in script.due(self.t_sim + time.monotonic() - self._pause_start):
+                        self.key_event(ev)
+                if self.done:
+                    break
+                now = time.monotonic() - wall0 - self._paused_s
+                if self.paused or self.t_sim + self.dt > now + 1e-9:
+                    wait = 0.01 if self.paused else self.t_sim + self.dt - now
+                    time.sleep(min(max(wait, 0.0), 0.005))
+                    continue
+                if script is not None:
+                    for ev in script.due(self.t_sim):
+                        self.key_event(ev)
+                    if self.done or self.paused:
+                        continue
+                self._step()
+        except BaseException as err:  # noqa: BLE001 - handed to the window's thread, which re-raises it
+            self.error = err
+            self.done = True
+
+
 def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None = None) -> dict[str, Any]:
     """Run one keyboard trial in a pygame window and log it.
+
+    The simulation runs in its own thread, locked to the wall clock; the window (this thread)
+    redraws the latest simulation step at up to ``opts.fps`` frames per second and passes key
+    presses to the simulation, so that drawing never waits for a simulation step.
 
     :param opts: the trial
     :param on_frame: called with every composed frame (tests, recording)
     :return: ``directory``, ``status`` (``completed`` or ``aborted``), ``end_reason``,
-        ``frames`` drawn, ``screenshots`` saved, ``frame_ms``: each frame's work (events, the
-        simulation steps due, composing and showing it; not the wait for the next frame) [ms]
+        ``frames`` drawn, ``screenshots`` saved, ``frame_ms``: each frame's work (window
+        events, composing and showing the picture; not the wait for the next frame) [ms],
+        ``size_px``, ``trial_wall_s`` and ``trial_sim_s`` (wall and simulated time of the trial [s])
     """
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     import gymnasium as gym
     import pygame
 
-    from dt_highway.study import TrialRecorder
     from dt_highway.trial_log import TrialWriter
 
     overrides = list(opts.overrides)
@@ -245,7 +410,6 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     label = "practice" if opts.practice else opts.condition
 
     env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
-    u = env.unwrapped
     size = (cfg.camera.width_px, cfg.camera.height_px)
     pygame.display.init()  # display only: text is drawn with OpenCV, no sound
     screen = pygame.display.set_mode(size)
@@ -271,134 +435,71 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             clock.tick(30)
         return None
 
-    meta = {"driver": "keyboard", "driver_file": None, "driver_params": {"keys_from": bool(scripted)},
+    meta = {"driver": "keyboard", "driver_file": None,
+            "driver_params": {"keys_from": bool(scripted), "steering": opts.steering},
             "participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
             "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
             "config": cfg.to_dict(), "simulation_frequency_hz": f_sim}
-    frames, shots = 0, 0
+    frames = 0
     frame_ms: list[float] = []
-    end_reason, status = "time limit", "completed"
+    names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
+    old_switch = sys.getswitchinterval()
     try:
         # the traffic and the twin's listening time are prepared while the participant reads the keys
         if not scripted:
             show(card(size, "Preparing the trial...", []))
-        obs, info = env.reset(seed=opts.seed)
+        _, info = env.reset(seed=opts.seed)
         if not scripted:
             legend = [f"{k:14s} {v}" for k, v in LEGEND]
             if wait_key(card(size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
                         (pygame.K_RETURN, pygame.K_KP_ENTER, pygame.K_ESCAPE)) == pygame.K_ESCAPE:
                 return {"directory": str(directory), "status": "not started", "end_reason": "quit before the start",
-                        "frames": 0, "screenshots": 0}
+                        "frames": 0, "screenshots": 0, "frame_ms": [], "size_px": list(size)}
             for n in (3, 2, 1):
                 wait_key(card(size, str(n), ["get ready"]), (), 1.0)
         with TrialWriter(directory, meta) as log:
-            rec = TrialRecorder(log)
-            pedals = Pedals()
-            wheel = Steering()
-            held: set[str] = set()
-            lane_tap = 0
-            dt = 1.0 / f_sim
-            t_sim, n_steps = 0.0, 0
-            duration = cfg.highway.duration
-            action = np.array([pedals.accel_mps2, 0.0])
-            rec.record(info, action, "")
-            paused, confirm_quit, show_map = False, False, opts.minimap
-            next_shot = 0.0 if opts.screenshot_every_s else math.inf
-            wall0 = time.monotonic()
-            paused_s = 0.0
-            pause_start = 0.0
-            done = False
-
-            def key_event(ev: KeyEvent) -> None:
-                nonlocal lane_tap, paused, confirm_quit, done, end_reason, status, show_map, paused_s, pause_start
-                log.event("key_down" if ev.down else "key_up", ev.t_s, key=ev.key)
-                if ev.down:
-                    held.add(ev.key)
-                else:
-                    held.discard(ev.key)
-                    return
-                if ev.key == "ESC":
-                    if confirm_quit or scripted:
-                        done, end_reason, status = True, "quit by the participant", "aborted"
-                    else:
-                        confirm_quit = True
-                        if not paused:
-                            paused, pause_start = True, time.monotonic()
-                    return
-                if confirm_quit:  # any other key: go on
-                    confirm_quit = False
-                    if paused:
-                        paused, paused_s = False, paused_s + time.monotonic() - pause_start
-                    return
-                if ev.key in ("LEFT", "RIGHT") and not opts.steering:
-                    lane_tap = -1 if ev.key == "LEFT" else 1
-                elif ev.key == "P":
-                    if paused:
-                        paused, paused_s = False, paused_s + time.monotonic() - pause_start
-                    else:
-                        paused, pause_start = True, time.monotonic()
-                elif ev.key == "M":
-                    show_map = not show_map
-
-            names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
-            while not done:
-                frame_t0 = time.perf_counter()
+            trial = _Trial(env, log, opts, label, info, shots_dir)
+            sim = threading.Thread(target=trial.run, name="dt-highway-sim", daemon=True)
+            sys.setswitchinterval(0.0005)  # the window gets the interpreter back quickly from the simulation
+            sim.start()
+            loop_t0 = time.perf_counter()
+            shown_steps = -1
+            while True:
+                t0 = time.perf_counter()
                 for ev in pygame.event.get():
                     if ev.type == pygame.QUIT:
-                        done, end_reason, status = True, "window closed", "aborted"
+                        trial.stop("window closed")
                     elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
-                        key_event(KeyEvent(t_sim, ev.type == pygame.KEYDOWN, names[ev.key]))
-                if scripted and paused:  # a script's pause lasts in wall time: its clock goes on
-                    for ev in opts.keys_from.due(t_sim + time.monotonic() - pause_start):
-                        key_event(ev)
-                if done:
+                        trial.keys_in.put((ev.type == pygame.KEYDOWN, names[ev.key]))
+                with trial.lock:
+                    snap = trial.snapshot
+                if snap is not None:
+                    hud = replace(snap.hud, paused=trial.paused)
+                    img = compose_frame(snap.rgb, snap.marks, hud, snap.minimap)
+                    if trial.confirm_quit:
+                        _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
+                              max(size[1] / 720.0, 0.35), (255, 230, 120), thick=2)
+                    show(img)
+                    frames += 1
+                    frame_ms.append((time.perf_counter() - t0) * 1e3)
+                    shown_steps = snap.n_steps
+                if trial.done and not sim.is_alive() and shown_steps == trial.n_steps:
                     break
-                # the simulation catches up with the wall clock, one simulation step at a time
-                now = (time.monotonic() - wall0 - paused_s) if not paused else t_sim
-                while not done and not paused and t_sim + dt <= now + 1e-9:
-                    if scripted:
-                        for ev in opts.keys_from.due(t_sim):
-                            key_event(ev)
-                        if done or paused:
-                            break
-                    accel = pedals.update("UP" in held, "DOWN" in held, dt)
-                    if opts.steering:
-                        action = np.array([accel, wheel.update("LEFT" in held, "RIGHT" in held, dt)])
-                    else:
-                        action = np.array([accel, float(lane_tap)])
-                    lane_tap = 0
-                    obs, _, terminated, truncated, info = env.step(action)
-                    n_steps += 1
-                    t_sim = n_steps * dt
-                    rec.record(info, action, ";".join(sorted(held)))
-                    if terminated or truncated:
-                        done = True
-                        end_reason = "collision" if u.vehicle.crashed else "time limit"
-                ego = u.vehicle
-                hud = Hud(float(ego.speed) * 3.6, int(ego.lane_index[2]) + 1,
-                          len(u.road.network.graph[ego.lane_index[0]][ego.lane_index[1]]),
-                          duration - t_sim, label, paused)
-                marks = (info.get("adas") or {}).get("overlay") if cfg.fusion.enabled else None
-                img = compose_frame(u.camera_frame().rgb, marks, hud, env.render() if show_map else None)
-                if confirm_quit:
-                    _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
-                          max(size[1] / 720.0, 0.35) * 1.0, (255, 230, 120), thick=2)
-                show(img)
-                frames += 1
-                if t_sim + 1e-9 >= next_shot:
-                    shots_dir.mkdir(parents=True, exist_ok=True)
-                    cv2.imwrite(str(shots_dir / f"t{t_sim:07.2f}s.png"), img[..., ::-1])
-                    shots += 1
-                    next_shot += opts.screenshot_every_s or math.inf
-                frame_ms.append((time.perf_counter() - frame_t0) * 1e3)
                 clock.tick(opts.fps)
-            log.meta["end_reason"] = end_reason
-            if status != "completed":
-                log.close(status, end_reason)
+            sim.join()
+            loop_wall_s = time.perf_counter() - loop_t0
+            sys.setswitchinterval(old_switch)
+            if trial.error is not None:
+                raise trial.error
+            log.meta["end_reason"] = trial.end_reason
+            if trial.status != "completed":
+                log.close(trial.status, trial.end_reason)
         if not scripted:
             wait_key(card(size, "Trial saved", [f"{directory}", "", "Press any key"]), (), 10.0)
     finally:
+        sys.setswitchinterval(old_switch)
         env.close()
         pygame.quit()
-    return {"directory": str(directory), "status": status, "end_reason": end_reason, "frames": frames,
-            "screenshots": shots, "frame_ms": frame_ms, "size_px": list(size)}
+    return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason, "frames": frames,
+            "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
+            "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim}
