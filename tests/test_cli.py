@@ -98,6 +98,11 @@ def test_camera_writes_pngs(tmp_path, capsys):
     assert raw["depth_m"].dtype.name == "float32" and raw["instance"].dtype.name == "int32"
     lines = (out / "frames.jsonl").read_text().splitlines()
     assert len(lines) == 2 and "vehicles" in json.loads(lines[0])
+    assert not (out / "overlay_0000.png").exists()  # no fusion, no ADAS view
+    adas = tmp_path / "adas"
+    assert main(["camera", "--out", str(adas), "--frames", "2", "--quiet", "--set", "fusion.enabled=true",
+                 "--set", "camera.width_px=160", "--set", "camera.height_px=90", *TINY]) == 0
+    assert cv2.imread(str(adas / "overlay_0001.png")).shape == (90, 160, 3)
 
 
 def test_camera_bad_input(tmp_path, capsys):

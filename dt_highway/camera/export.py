@@ -115,7 +115,8 @@ def record_frames(
     :param seed: env seed
     :param out: output directory (created)
     :param every: policy steps between frames [-]
-    :param raw: also write ``.npz`` files with float depth and instance ids
+    :param raw: also write ``.npz`` files with float depth and instance ids; with the fusion on
+        (``fusion.enabled``), ``overlay_XXXX.png`` shows the ADAS marks on each frame
     :param progress: called with 1 after each frame
     :return: a summary (files written, frames, vehicles seen)
     """
@@ -136,6 +137,12 @@ def record_frames(
                         env.reset()
             frame = env.camera_frame()
             written += write_frame(frame, out, i, max_range, raw)
+            if env.adas is not None:  # the ADAS view: the marks a driver sees, drawn on the frame
+                from dt_highway.overlay import draw_overlay
+
+                path = out / f"overlay_{i:04d}.png"
+                cv2.imwrite(str(path), draw_overlay(frame.rgb, env.adas["overlay"])[..., ::-1])
+                written.append(path)
             seen.update(v for v, t in frame.vehicles.items() if t.visible_box is not None)
             log.write(json.dumps({
                 "index": i,
