@@ -449,6 +449,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         if not scripted:
             show(card(size, "Preparing the trial...", []))
         _, info = env.reset(seed=opts.seed)
+        env.render()  # highway-env's viewer (the mini-map) is made here, on the window's thread
+        pygame.display.set_caption(f"dt-highway: {opts.participant} {label}")  # it renames the window
         if not scripted:
             legend = [f"{k:14s} {v}" for k, v in LEGEND]
             if wait_key(card(size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
