@@ -107,6 +107,15 @@ def test_condition_order_is_counterbalanced_by_participant():
 
     assert condition_order("P01") == ("baseline", "adas") and condition_order("P02") == ("adas", "baseline")
     assert condition_order("anna") == condition_order("anna") and set(condition_order("anna")) == {"baseline", "adas"}
+    from pathlib import Path
+
+    from dt_highway.hmi.drive import DriveOptions
+    from dt_highway.hmi.session import session_plan
+
+    plan = session_plan(DriveOptions("P02", "baseline", Path("o"), screenshots=Path("shots"), seed=5), 30.0)
+    assert [(t.condition, t.practice, t.seed, t.duration_s) for t in plan] == [
+        ("adas", True, 1005, 30.0), ("adas", False, 5, None), ("baseline", False, 5, None)]
+    assert [t.screenshots.name for t in plan] == ["P02-practice", "P02-adas", "P02-baseline"]  # no overwriting
 
 
 def test_a_session_runs_practice_and_both_conditions_resumes_and_reports_by_participant(tmp_path, capsys):

@@ -38,7 +38,11 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None) -
     first, second = condition_order(base.participant)
     practice = replace(base, condition=first, practice=True, seed=base.seed + PRACTICE_SEED_OFFSET,
                        duration_s=practice_duration_s if practice_duration_s is not None else base.duration_s)
-    return [practice, replace(base, condition=first, practice=False), replace(base, condition=second, practice=False)]
+    trials = [practice, replace(base, condition=first, practice=False), replace(base, condition=second, practice=False)]
+    if base.screenshots is not None:  # one folder per trial, or their screenshots would overwrite each other
+        trials = [replace(t, screenshots=base.screenshots / trial_dir(t.out, t.participant, t.condition, t.practice).name)
+                  for t in trials]
+    return trials
 
 
 def _completed(opts: DriveOptions) -> bool:
