@@ -202,3 +202,24 @@ def test_steering_mode_steers_the_ego_across_the_lane(tmp_path):
     steer = steps["action_lane"].to_numpy()  # the steering command in steering mode
     assert steer[:3].max() == 0.0 and steer[round(1.2 * 15)] == pytest.approx(1.0) and steer[-1] == 0.0
     assert steps["y_m"].iloc[-1] > steps["y_m"].iloc[0] + 1.0  # drifted right: no lane keeping pulled it back
+
+
+def test_an_error_in_the_simulation_ends_the_trial_as_aborted_and_is_raised(tmp_path, monkeypatch):
+    from dt_highway.env import DTHighwayEnv
+    from dt_highway.hmi.drive import DriveOptions, run_drive
+    from dt_highway.hmi.keys import KeyScript
+
+    real_step = DTHighwayEnv.step
+
+    def failing_step(self, action):
+        if self.steps >= 10:
+            raise RuntimeError("simulated failure")
+        return real_step(self, action)
+
+    monkeypatch.setattr(DTHighwayEnv, "step", failing_step)
+    overrides = [a for a in FAST if a not in ("--set", "--no-minimap")]
+    with pytest.raises(RuntimeError, match="simulated failure"):
+        run_drive(DriveOptions("P06", "baseline", tmp_path / "s", scenario="envs/highway-trial.toml",
+                               overrides=overrides, duration_s=5.0, keys_from=KeyScript([])))
+    trial = load_trial(tmp_path / "s" / "trials" / "P06-baseline")
+    assert trial.meta["status"] == "aborted" and "simulated failure" in trial.meta["end_reason"]

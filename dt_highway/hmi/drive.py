@@ -485,7 +485,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                     frames += 1
                     frame_ms.append((time.perf_counter() - t0) * 1e3)
                     shown_steps = snap.n_steps
-                if trial.done and not sim.is_alive() and shown_steps == trial.n_steps:
+                if trial.done and not sim.is_alive() and (shown_steps == trial.n_steps or trial.error is not None):
                     break
                 clock.tick(opts.fps)
             sim.join()
