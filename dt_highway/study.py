@@ -152,7 +152,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     if done is not None and done.meta.get("status") == "completed":
         if spec.parquet and not (out / "steps.parquet").exists():
             try:
-                write_parquet(out)
+                write_parquet(out, done)
             except (ImportError, ValueError) as err:
                 return {"status": "failed", "directory": str(out), "error": str(err)}
         return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
@@ -190,7 +190,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
     trial = load_trial(out)
     if spec.parquet:
         try:
-            write_parquet(out)
+            write_parquet(out, trial)
         except (ImportError, ValueError) as err:  # the CSV log is complete: report, keep it
             return {"status": "failed", "directory": str(out), "error": str(err)}
     return {"status": "completed", "directory": str(out), "metrics": trial.metrics()}

@@ -124,12 +124,13 @@ class TrialWriter:
             self.close("completed", self.meta.get("end_reason") or "")
 
 
-def write_parquet(directory: str | Path) -> Path:
+def write_parquet(directory: str | Path, trial: Trial | None = None) -> Path:
     """Write a completed trial's steps as ``steps.parquet`` beside ``steps.csv`` (needs pyarrow).
 
     The CSV stays the log of record; the Parquet copy is for fast loading of large studies.
 
     :param directory: the trial's directory
+    :param trial: the trial already read from it (read here when ``None``)
     :return: the Parquet file
     :raises ImportError: if pyarrow is not installed
     :raises ValueError: if the trial is not completed
@@ -138,7 +139,7 @@ def write_parquet(directory: str | Path) -> Path:
         import pyarrow  # noqa: F401
     except ImportError:
         raise ImportError("Parquet output needs pyarrow: pip install 'dt-highway[parquet]'") from None
-    trial = load_trial(directory)
+    trial = trial if trial is not None else load_trial(directory)
     if trial.meta.get("status") != "completed":
         raise ValueError(f"trial {trial.path} is {trial.meta.get('status')}: Parquet is written only for completed trials")
     out = Path(directory) / "steps.parquet"

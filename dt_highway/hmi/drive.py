@@ -180,6 +180,36 @@ class DriveOptions:
     steering: bool = False
 
 
+def _show(screen: Any, img: np.ndarray, on_frame: Callable[[np.ndarray], None] | None = None) -> None:
+    """Put ``img`` on the window."""
+    import pygame
+
+    screen.blit(pygame.image.frombuffer(np.ascontiguousarray(img).tobytes(), screen.get_size(), "RGB"), (0, 0))
+    pygame.display.flip()
+    if on_frame is not None:
+        on_frame(img)
+
+
+def _wait_key(screen: Any, clock: Any, img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None,
+              on_frame: Callable[[np.ndarray], None] | None = None) -> int | None:
+    """Show ``img`` until one of ``keys`` (any key when empty) is pressed or ``seconds`` pass.
+
+    :return: the key pressed (Esc when the window is closed), ``None`` after ``seconds``
+    """
+    import pygame
+
+    _show(screen, img, on_frame)
+    t_end = None if seconds is None else time.monotonic() + seconds
+    while t_end is None or time.monotonic() < t_end:
+        for ev in pygame.event.get():
+            if ev.type == pygame.QUIT:
+                return pygame.K_ESCAPE
+            if ev.type == pygame.KEYDOWN and (not keys or ev.key in keys):
+                return ev.key
+        clock.tick(30)
+    return None
+
+
 def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: float | None = None) -> bool:
     """Show a screen (e.g. a break between trials) until Enter is pressed.
 
@@ -193,19 +223,9 @@ def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: fl
     pygame.display.init()
     try:
         screen = pygame.display.set_mode(size)
-        img = card(size, title, lines)
-        screen.blit(pygame.image.frombuffer(img.tobytes(), size, "RGB"), (0, 0))
-        pygame.display.flip()
-        t_end = None if timeout_s is None else time.monotonic() + timeout_s
-        clock = pygame.time.Clock()
-        while t_end is None or time.monotonic() < t_end:
-            for ev in pygame.event.get():
-                if ev.type == pygame.QUIT or (ev.type == pygame.KEYDOWN and ev.key == pygame.K_ESCAPE):
-                    return False
-                if ev.type == pygame.KEYDOWN and ev.key in (pygame.K_RETURN, pygame.K_KP_ENTER):
-                    return True
-            clock.tick(30)
-        return True
+        key = _wait_key(screen, pygame.time.Clock(), card(size, title, lines),
+                        (pygame.K_RETURN, pygame.K_KP_ENTER, pygame.K_ESCAPE), timeout_s)
+        return key != pygame.K_ESCAPE
     finally:
         pygame.quit()
 
@@ -244,9 +264,8 @@ class _Trial:
 
         self.env, self.u, self.log, self.opts, self.label = env, env.unwrapped, log, opts, label
         self.cfg_fusion = self.u.dt_config.fusion.enabled
-        self.f_sim = self.u.dt_config.highway.simulation_frequency
         self.duration = self.u.dt_config.highway.duration
-        self.dt = 1.0 / self.f_sim
+        self.dt = 1.0 / self.u.dt_config.highway.simulation_frequency
         self.rec = TrialRecorder(log)
         self.pedals, self.wheel = Pedals(), Steering()
         self.held: set[str] = set()
@@ -417,23 +436,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     clock = pygame.time.Clock()
 
     def show(img: np.ndarray) -> None:
-        screen.blit(pygame.image.frombuffer(np.ascontiguousarray(img).tobytes(), size, "RGB"), (0, 0))
-        pygame.display.flip()
-        if on_frame is not None:
-            on_frame(img)
+        _show(screen, img, on_frame)
 
     def wait_key(img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None) -> int | None:
-        """Show ``img`` until one of ``keys`` is pressed (or ``seconds`` pass)."""
-        show(img)
-        t_end = None if seconds is None else time.monotonic() + seconds
-        while t_end is None or time.monotonic() < t_end:
-            for ev in pygame.event.get():
-                if ev.type == pygame.QUIT:
-                    return pygame.K_ESCAPE
-                if ev.type == pygame.KEYDOWN and (not keys or ev.key in keys):
-                    return ev.key
-            clock.tick(30)
-        return None
+        return _wait_key(screen, clock, img, keys, seconds, on_frame)
 
     meta = {"driver": "keyboard", "driver_file": None,
             "driver_params": {"keys_from": bool(scripted), "steering": opts.steering},
@@ -466,6 +472,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             sim.start()
             loop_t0 = time.perf_counter()
             shown_steps = -1
+            composed_key: tuple[int, bool, bool] | None = None
             while True:
                 t0 = time.perf_counter()
                 for ev in pygame.event.get():
@@ -476,11 +483,13 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                 with trial.lock:
                     snap = trial.snapshot
                 if snap is not None:
-                    hud = replace(snap.hud, paused=trial.paused)
-                    img = compose_frame(snap.rgb, snap.marks, hud, snap.minimap)
-                    if trial.confirm_quit:
-                        _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
-                              max(size[1] / 720.0, 0.35), (255, 230, 120), thick=2)
+                    key = (snap.n_steps, trial.paused, trial.confirm_quit)
+                    if key != composed_key:  # a step's picture is composed once, shown every frame
+                        img = compose_frame(snap.rgb, snap.marks, replace(snap.hud, paused=trial.paused), snap.minimap)
+                        if trial.confirm_quit:
+                            _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
+                                  max(size[1] / 720.0, 0.35), (255, 230, 120), thick=2)
+                        composed_key = key
                     show(img)
                     frames += 1
                     frame_ms.append((time.perf_counter() - t0) * 1e3)
