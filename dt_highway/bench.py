@@ -299,3 +299,61 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
         "target_p99_ms": DRIVE_TARGET_P99_MS, "target_met": p99 <= DRIVE_TARGET_P99_MS and fps >= DRIVE_TARGET_FPS,
         "wall_s_with_setup": round(wall, 1),
     }
+
+
+def bench_detector(weights: str | None = None, batch: int = 32, seconds: float = 10.0, threads: int = 2,
+                   width_px: int = 320, height_px: int = 180) -> dict[str, Any]:
+    """Throughput and latency of the learned detector on rendered frames.
+
+    Times the whole :meth:`~dt_highway.perception.learned.detector.LearnedDetector.detect_batch`
+    call (uint8 frames in, boxes out: normalisation, the network, peak picking), batched and
+    one frame at a time, for ``seconds`` each, after a warm-up.
+
+    :param weights: weights file (``None``: the shipped weights)
+    :param batch: frames per batched call [-]
+    :param seconds: time spent on each measurement [s]
+    :param threads: torch threads [-]
+    :param width_px: frame width [px]
+    :param height_px: frame height [px]
+    :return: frames/s batched, single-frame latency median/p90/p99 [ms], the settings
+    """
+    import numpy as np
+    import torch
+
+    from dt_highway.perception.learned.data import SceneSettings, make_frame
+    from dt_highway.perception.learned.detector import LearnedDetector
+
+    torch.set_num_threads(threads)
+    det = LearnedDetector(weights)
+    settings = SceneSettings(width_px, height_px, vary_camera=False)
+    frames = [make_frame(s, settings) for s in range(batch)]
+    rgbs = [f.rgb for f in frames]
+    depths = [f.depth_m for f in frames]
+    for _ in range(3):
+        det.detect_batch(rgbs, depths)
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        det.detect_batch(rgbs, depths)
+        n += batch
+    batched_fps = n / (time.perf_counter() - t0)
+    lat = []
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        i = len(lat) % batch
+        t = time.perf_counter()
+        det.detect_batch(rgbs[i : i + 1], depths[i : i + 1])
+        lat.append(1000.0 * (time.perf_counter() - t))
+    lat_a = np.array(lat)
+    return {
+        "frames_per_s_batched": round(batched_fps, 1),
+        "batch": batch,
+        "single_frame_ms": {"median": round(float(np.median(lat_a)), 2), "p90": round(float(np.percentile(lat_a, 90)), 2),
+                            "p99": round(float(np.percentile(lat_a, 99)), 2)},
+        "single_frame_fps": round(1000.0 / float(np.median(lat_a)), 1),
+        "image_px": [width_px, height_px],
+        "network_px": [det.arch.width_px, det.arch.height_px],
+        "threads": threads,
+        "weights": str(weights or "shipped"),
+        "target_frames_per_s": 200,
+        "target_met": bool(batched_fps >= 200),
+    }

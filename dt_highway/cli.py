@@ -16,7 +16,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.config import ConfigError, DTConfig, load_config, merge
 from dt_highway.jsonio import dump_json
 
 
@@ -291,23 +291,38 @@ def cmd_matching(args: argparse.Namespace) -> int:
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with _progress(args.frames, "matching", args.quiet) as bar:
-        result = run_matching(cfg, args.frames, args.seed, progress=bar.update)
-    write_outputs(result, out)
-    (out / "config.json").write_text(dump_json(cfg.to_dict()) + "\n")
-    summ = result.summary()
-    print(f"{summ['n_frames']} frames ({summ['n_tricky']} tricky, {summ['n_ambiguous']} with the anchor in several boxes)"
-          "; accuracy at IoU 0.7 (all / tricky):")
-    for m, v in summ["methods"].items():
-        print(f"  {m:9s} {v['acc_iou70']:.3f} / {v['acc_iou70_tricky']:.3f}")
+    kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
+    bad = [k for k in kinds if k not in ("simulated", "learned")]
+    if bad or not kinds:
+        raise ConfigError(f"--detectors takes simulated and/or learned, comma-separated (got '{args.detectors}')")
+    table: dict[str, Any] = {}
+    for kind in kinds:
+        # one detector: its outputs in --out; several: one subdirectory each (same frames and targets)
+        where = out if len(kinds) == 1 else out / kind
+        kcfg = merge(cfg, {"detector": {"kind": kind}})
+        with _progress(args.frames, f"matching ({kind})", args.quiet) as bar:
+            result = run_matching(kcfg, args.frames, args.seed, progress=bar.update)
+        write_outputs(result, where)
+        (where / "config.json").write_text(dump_json(kcfg.to_dict()) + "\n")
+        summ = result.summary()
+        table[kind] = {m: {"acc_iou70": v["acc_iou70"], "acc_iou70_tricky": v["acc_iou70_tricky"]}
+                       for m, v in summ["methods"].items()}
+        print(f"{kind} detector: {summ['n_frames']} frames ({summ['n_tricky']} tricky, {summ['n_ambiguous']} with the "
+              "anchor in several boxes); accuracy at IoU 0.7 (all / tricky):")
+        for m, v in summ["methods"].items():
+            print(f"  {m:9s} {v['acc_iou70']:.3f} / {v['acc_iou70_tricky']:.3f}")
+    if len(kinds) > 1:
+        (out / "detectors.json").write_text(dump_json({"frames": args.frames, "seed": args.seed, "accuracy": table}) + "\n")
+        print(f"wrote {', '.join(kinds)} results to {out}/<detector>/ and the comparison to {out / 'detectors.json'}")
     written = "curve.csv, summary.json, frames.csv, curve.png"
     if args.sweep:
         n_runs = 4 + 4 + 3 + 1
         with _progress(args.frames * n_runs, "sweep", args.quiet) as bar:
             rows = run_sweep(cfg, args.frames, args.seed, progress=bar.update)
         write_sweep(rows, out)
-        written += ", sweep.csv, sweep.json, sweep.png"
-    print(f"wrote {written} to {out}")
+        print(f"wrote sweep.csv, sweep.json, sweep.png ({cfg.detector.kind} detector) to {out}")
+    if len(kinds) == 1:
+        print(f"wrote {written} to {out}")
     return 0
 
 
@@ -387,6 +402,112 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
     return 0
 
 
+
+# ----------------------------------------------------------------------------- detector
+def _weights_arg(path: str | None) -> str | None:
+    if path is not None and not Path(path).is_file():
+        raise ConfigError(f"weights file not found: {path}")
+    return path
+
+
+def cmd_detector_train(args: argparse.Namespace) -> int:
+    """Train the learned detector (resumes from <out>.ckpt)."""
+    from tqdm import tqdm
+
+    from dt_highway.perception.learned.model import Architecture
+    from dt_highway.perception.learned.train import TrainSettings, train
+
+    out = Path(args.out)
+    ckpt = out.with_name(out.name + ".ckpt")
+    if args.fresh and ckpt.exists():
+        ckpt.unlink()
+    elif ckpt.exists():
+        print(f"resuming from {ckpt}", file=sys.stderr)
+    arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
+    settings = TrainSettings(minutes=args.minutes, batch=args.batch, seed=args.seed, max_steps=args.max_steps)
+    total = int(round(args.minutes * 60))
+    with tqdm(total=total, desc="train", unit="s", disable=args.quiet, file=sys.stderr, leave=False,
+              bar_format="{l_bar}{bar}| {n:.0f}/{total} s [{elapsed}<{remaining}{postfix}]") as bar:
+
+        def progress(step: int, elapsed_s: float, losses: dict[str, float]) -> None:
+            bar.n = min(elapsed_s, total)
+            if step % 10 == 0:
+                bar.set_postfix(step=step, loss=f"{losses['loss']:.3f}", refresh=False)
+            bar.refresh()
+
+        try:
+            result = train(out, arch, settings, resume=True, progress=progress)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    print(f"trained {result['steps']} steps ({result['frames_rendered']} frames rendered, "
+          f"{result['train_minutes']} min{', resumed' if result['resumed'] else ''}); "
+          f"last loss {result['last_losses'].get('loss', float('nan')):.3f}")
+    print(f"wrote {result['weights']} (checkpoint {result['checkpoint']})")
+    if args.eval_frames:
+        args.weights, args.frames, args.json, args.width_eval = str(out), args.eval_frames, False, None
+        return cmd_detector_eval(args)
+    return 0
+
+
+def cmd_detector_eval(args: argparse.Namespace) -> int:
+    """AP of the learned detector on held-out frames."""
+    from dt_highway.perception.learned.detector import LearnedDetector
+    from dt_highway.perception.learned.evaluate import evaluate
+
+    try:
+        det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score)
+    except (FileNotFoundError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    size = getattr(args, "size", None)
+    w, h = size if size else (None, None)
+    with _progress(args.frames, "eval", args.quiet, unit="frame") as bar:
+        try:
+            result = evaluate(det, args.frames, args.seed, w, h, progress=lambda n: bar.update(n - bar.n))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    result["weights"] = args.weights or "shipped"
+    if getattr(args, "out_json", None):
+        Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out_json).write_text(dump_json(result) + "\n")
+    if args.json:
+        print(dump_json(result))
+    else:
+        print(f"{result['frames']} held-out frames {result['image_px'][0]}x{result['image_px'][1]} "
+              f"(seeds {result['seeds'][0]}..{result['seeds'][1]}), {result['scored_vehicles']} scored vehicles, "
+              f"{result['ignored_vehicles']} ignored")
+        print(f"AP {result['AP']:.3f}  AP50 {result['AP50']:.3f}  AP75 {result['AP75']:.3f}  "
+              f"recall@IoU0.7 {result['recall_iou07']:.3f} (at score >= {result['operating_score']}: "
+              f"{result['recall_iou07_at_operating_score']:.3f}, precision {result['precision_iou07_at_operating_score']:.3f})")
+    return 0
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--size must look like 640x360 (got '{text}')") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise argparse.ArgumentTypeError(f"--size must be 16..4096 per side (got '{text}')")
+    return w, h
+
+
+def cmd_bench_detector(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_detector
+
+    try:
+        result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
+    except (FileNotFoundError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    if args.json:
+        print(dump_json(result))
+    else:
+        s = result["single_frame_ms"]
+        print(f"learned detector {result['image_px'][0]}x{result['image_px'][1]}, {result['threads']} threads: "
+              f"{result['frames_per_s_batched']} frames/s batched ({result['batch']} per call); one frame "
+              f"median {s['median']} ms, p90 {s['p90']} ms, p99 {s['p99']} ms")
+        print(f"target >= {result['target_frames_per_s']} frames/s batched: {'met' if result['target_met'] else 'NOT met'}")
+    return 0
+
 # ----------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     from dt_highway import __version__
@@ -434,6 +555,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     p.add_argument("--sweep", action="store_true",
                    help="also sweep GNSS noise {0.5,1,2,3} m, latency {0,0.1,0.3,0.5} s, rate {10,5,1} Hz")
+    p.add_argument("--detectors", metavar="KINDS",
+                   help="detectors to compare, e.g. simulated,learned (default: the config's detector.kind)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_matching)
 
@@ -472,6 +595,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("study", help="study directory (runs/<name>)")
     p.set_defaults(func=cmd_report)
 
+    det = sub.add_parser("detector", help="the learned vehicle detector: train it, evaluate it")
+    dsub = det.add_subparsers(dest="detector", metavar="ACTION")
+    det.set_defaults(func=lambda a: (det.print_help(), 2)[1])
+    p = dsub.add_parser("train", help="train on frames the camera renders on the fly (CPU; resumes from <out>.ckpt)")
+    p.add_argument("--out", required=True, help="weights file to write, e.g. runs/detector.pt")
+    p.add_argument("--minutes", type=_positive(float, "--minutes"), default=30.0, help="training time [min] (default 30)")
+    p.add_argument("--depth", action="store_true", help="inverse depth as a fourth input channel")
+    p.add_argument("--width", type=_positive(int, "--width"), default=320, help="network input width [px] (default 320)")
+    p.add_argument("--height", type=_positive(int, "--height"), default=180, help="network input height [px] (default 180)")
+    p.add_argument("--batch", type=_positive(int, "--batch"), default=32, help="images per step (default 32)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of replay choices (default 0)")
+    p.add_argument("--max-steps", type=_positive(int, "--max-steps"), help="stop after this many steps")
+    p.add_argument("--fresh", action="store_true", help="start over instead of resuming from <out>.ckpt")
+    p.add_argument("--eval-frames", type=_positive(int, "--eval-frames"), help="evaluate on this many held-out frames after")
+    p.add_argument("--min-score", type=float, default=0.3, help=argparse.SUPPRESS)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_detector_train)
+    p = dsub.add_parser("eval", help="COCO AP, AP50, AP75 and recall at IoU 0.7 on held-out seeded frames")
+    p.add_argument("--weights", help="weights file (default: the shipped weights)")
+    p.add_argument("--frames", type=_positive(int, "--frames"), default=500, help="held-out frames (default 500)")
+    p.add_argument("--seed", type=_seed, default=0, help="first frame seed (default 0)")
+    p.add_argument("--size", type=_size, help="frame size WxH (default: the network's, 320x180)")
+    p.add_argument("--min-score", type=float, default=0.3, help="operating score for recall/precision (default 0.3)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", dest="out_json", help="also write the JSON result to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_detector_eval)
+
     bench = sub.add_parser("bench", help="benchmarks that print numbers")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH")
     bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
@@ -498,6 +649,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20, help="boxes and twin vehicles per frame (default 20)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_fusion)
+    p = bsub.add_parser("detector", help="frames/s of the learned detector, batched, and one frame's latency")
+    p.add_argument("--weights", help="weights file (default: the shipped weights)")
+    p.add_argument("--batch", type=_positive(int, "--batch"), default=32, help="frames per call (default 32)")
+    p.add_argument("--seconds", type=_positive(float, "--seconds"), default=10.0, help="time per measurement [s] (default 10)")
+    p.add_argument("--threads", type=_positive(int, "--threads"), default=2, help="torch threads (default 2)")
+    p.add_argument("--size", type=_size, default=(320, 180), help="frame size WxH (default 320x180)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench_detector)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

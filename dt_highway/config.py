@@ -323,13 +323,24 @@ class CameraConfig(_Section):
 class DetectorConfig(_Section):
     """The detector that finds vehicles in the camera frame (:mod:`dt_highway.perception.detect`)."""
 
-    kind: Literal["simulated"] = Field("simulated", description="'simulated': ground truth plus realistic errors")
+    kind: Literal["simulated", "learned"] = Field(
+        "simulated",
+        description="'simulated': ground truth plus realistic errors; 'learned': the trained network on the RGB image",
+    )
+    weights: str | None = Field(None, description="learned: weights file (None: the shipped weights)")
+    min_score: float = Field(0.3, ge=0, le=1, description="learned: least score of a detection [-]")
     jitter: float = Field(0.03, ge=0, le=0.5, description="box edge noise, fraction of the box's size [-]")
     miss_height_px: float = Field(6.0, ge=0, description="visible height missed half of the time [px]")
     miss_visibility: float = Field(0.25, ge=0, le=1, description="visibility missed half of the time [-]")
     merge_overlap: float = Field(0.5, gt=0, le=1, description="overlap (of the smaller box) from which boxes may merge [-]")
     merge_prob: float = Field(0.5, ge=0, le=1, description="probability that such a pair comes out as one box [-]")
     false_positives_per_frame: float = Field(0.05, ge=0, le=20, description="mean spurious boxes per frame [-]")
+
+    @model_validator(mode="after")
+    def _weights_file(self) -> DetectorConfig:
+        if self.weights is not None and not Path(self.weights).is_file():
+            raise ValueError(f"weights file not found: {self.weights}")
+        return self
 
 
 class FusionConfig(_Section):

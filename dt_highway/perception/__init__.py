@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+
 import numpy as np
 
 from dt_highway.config import DetectorConfig, FusionConfig
@@ -14,13 +17,32 @@ from dt_highway.perception.tracking import BoxTracker
 
 
 
-def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -> SimulatedDetector:
+def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -> Detector:
     """The detector described by a ``detector`` config section.
 
     :param cfg: :class:`~dt_highway.config.DetectorConfig`
-    :param rng: its random generator
+    :param rng: its random generator (the simulated detector's errors)
+    :return: a :class:`SimulatedDetector` or a
+        :class:`~dt_highway.perception.learned.detector.LearnedDetector`
+    :raises ValueError: if the learned detector's weights file cannot be read
     """
-    return SimulatedDetector(SimulatedDetectorSettings(**cfg.model_dump(exclude={"kind"})), rng)
+    if cfg.kind == "learned":
+        from dt_highway.perception.learned.weights import SHIPPED
+
+        path = Path(cfg.weights) if cfg.weights else SHIPPED
+        stamp = path.stat().st_mtime_ns if path.is_file() else 0
+        return _learned(str(path.resolve()), stamp, cfg.min_score)
+    fields = cfg.model_dump(exclude={"kind", "weights", "min_score"})
+    return SimulatedDetector(SimulatedDetectorSettings(**fields), rng)
+
+
+@functools.lru_cache(maxsize=4)
+def _learned(weights: str, stamp: int, min_score: float) -> Detector:
+    # one network per weights file (and version of it) and process: episodes and envs
+    # share it (it has no state)
+    from dt_highway.perception.learned.detector import LearnedDetector
+
+    return LearnedDetector(weights, min_score)
 
 
 def fusion_settings(cfg: FusionConfig, method: str | None = None) -> FusionSettings:

@@ -1,0 +1,85 @@
+"""The learned detector behind the fusion's detector interface (``detector.kind = "learned"``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from dt_highway.camera.render import CameraFrame
+from dt_highway.perception.detect import VEHICLE, Detections
+from dt_highway.perception.learned.model import inverse_depth, peaks, to_input
+from dt_highway.perception.learned.weights import load_weights
+
+
+class LearnedDetector:
+    """Finds vehicles in camera frames with a trained :class:`~dt_highway.perception.learned.model.PointDetector`.
+
+    Frames of another size than the network's input are resized to it (``cv2.INTER_AREA``)
+    and the boxes scaled back, so one set of weights serves any camera with the same aspect
+    ratio. It reads ``frame.rgb`` (and ``frame.depth_m`` for a depth model) only.
+
+    :param weights: a weights file (``None``: the shipped weights)
+    :param min_score: least score of a reported detection [-]
+    :param threads: torch threads (``None``: leave torch's setting)
+    :raises FileNotFoundError: if the weights file does not exist
+    :raises ValueError: if it is not a complete weights file
+    """
+
+    def __init__(self, weights: str | Path | None = None, min_score: float = 0.3, threads: int | None = None) -> None:
+        if not 0.0 <= min_score <= 1.0:
+            raise ValueError(f"min_score must be in [0, 1] (got {min_score})")
+        self.model, self.meta = load_weights(weights)
+        self.arch = self.model.arch
+        self.min_score = min_score
+        if threads is not None:
+            torch.set_num_threads(threads)
+
+    def detect(self, frame: CameraFrame) -> Detections:
+        """Vehicles in one frame.
+
+        :param frame: a camera frame
+        :return: boxes ``x1, y1, x2, y2`` [px] in the frame's pixels, scores, classes (0)
+        """
+        return self.detect_batch([frame.rgb], [frame.depth_m] if self.arch.depth else None)[0]
+
+    def detect_batch(self, rgbs: list[np.ndarray] | np.ndarray, depths: list[np.ndarray] | None = None,
+                     min_score: float | None = None) -> list[Detections]:
+        """Vehicles in a batch of images (one forward pass).
+
+        :param rgbs: ``uint8 (H, W, 3)`` images, all of one size
+        :param depths: ``(H, W)`` planar depth images [m] (depth models only)
+        :param min_score: least score (default: the detector's)
+        :return: one :class:`Detections` per image
+        """
+        arch = self.arch
+        if len(rgbs) == 0:
+            return []
+        h, w = rgbs[0].shape[:2]
+        size = (arch.width_px, arch.height_px)
+        resize = (w, h) != size
+        if resize:
+            rgbs = [cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in rgbs]
+        inv = None
+        if arch.depth:
+            if depths is None:
+                raise ValueError("this detector reads depth: give the frames' depth images")
+            ds = [cv2.resize(d, size, interpolation=cv2.INTER_NEAREST) if resize else d for d in depths]
+            inv = torch.from_numpy(np.stack([inverse_depth(d) for d in ds]))
+        batch = torch.from_numpy(np.ascontiguousarray(np.stack(rgbs)))
+        with torch.inference_mode():
+            heat, dist = self.model(to_input(batch, arch, inv))
+            found = peaks(heat, dist, min_score=self.min_score if min_score is None else min_score)
+        sx, sy = w / arch.width_px, h / arch.height_px
+        out = []
+        for boxes, scores in found:
+            if resize:
+                # pixel centres are at integers: x_frame = (x_net + 0.5) * scale - 0.5
+                boxes = (boxes + 0.5) * np.array([sx, sy, sx, sy]) - 0.5
+            boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], -0.5, w - 0.5)
+            boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], -0.5, h - 0.5)
+            ok = (boxes[:, 2] - boxes[:, 0] >= 1.0) & (boxes[:, 3] - boxes[:, 1] >= 1.0)
+            out.append(Detections(boxes[ok], scores[ok], np.full(int(ok.sum()), VEHICLE, dtype=np.int64)))
+        return out

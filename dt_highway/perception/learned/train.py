@@ -1,0 +1,279 @@
+"""Training the learned detector on the CPU, on frames the camera makes on the fly.
+
+A data worker process renders frames (:func:`~dt_highway.perception.learned.data.make_frame`,
+seeds from :data:`~dt_highway.perception.learned.data.TRAIN_SEED0` on), flips half of them
+left-right and builds their targets; the trainer takes half of each batch fresh from the
+worker and half from a replay pool of recent frames (each frame is seen about twice, under
+other colours: the worker randomises colours and lighting, :func:`randomise_colours`) and
+steps AdamW with a cosine learning rate over the time budget.
+
+A checkpoint (model, optimiser, counters, generator states) is written atomically every
+``checkpoint_every_s`` to ``<out>.ckpt``; running the same command again resumes from it.
+The finished weights (:func:`save_weights`) hold plain tensors and values only, so that
+``torch.load(..., weights_only=True)`` reads them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, IterableDataset
+
+from dt_highway.perception.learned.data import TRAIN_SEED0, SceneSettings, make_frame
+from dt_highway.perception.learned.model import (
+    STRIDE,
+    Architecture,
+    PointDetector,
+    decode_boxes,
+    focal_loss,
+    giou_loss,
+    inverse_depth,
+    make_targets,
+    to_input,
+)
+from dt_highway.perception.learned.weights import save_weights
+
+__all__ = ["TrainSettings", "train", "randomise_colours"]
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """How a detector is trained.
+
+    :param minutes: wall-clock training budget [min] (the learning rate follows it)
+    :param batch: images per step (half fresh, half replayed) [-]
+    :param lr: peak learning rate [-]
+    :param weight_decay: AdamW weight decay [-]
+    :param warmup_steps: linear warm-up [steps]
+    :param replay: frames kept for replay [-]
+    :param threads: torch threads of the trainer (the data worker takes what is left) [-]
+    :param checkpoint_every_s: seconds between checkpoints [s]
+    :param seed: seed of the replay choices, flips and colours (frames have their own seeds)
+    :param max_steps: stop after this many steps, whatever the time (tests) [-]
+    """
+
+    minutes: float = 30.0
+    batch: int = 32
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    warmup_steps: int = 100
+    replay: int = 2048
+    threads: int = 2
+    checkpoint_every_s: float = 60.0
+    seed: int = 0
+    max_steps: int | None = None
+
+
+# ----------------------------------------------------------------------------- data
+class _Frames(IterableDataset):
+    """Rendered, flipped frames with their targets, seeds ``first_seed, first_seed + 1, ...``.
+
+    Each frame comes in two colourings (:func:`randomise_colours`): one for the batch at hand,
+    one for the replay pool.
+    """
+
+    def __init__(self, arch: Architecture, first_seed: int) -> None:
+        self.arch = arch
+        self.first_seed = first_seed
+
+    def __iter__(self) -> Iterator[tuple[torch.Tensor, ...]]:
+        arch = self.arch
+        settings = SceneSettings(arch.width_px, arch.height_px, vary_camera=True)
+        grid = (arch.padded[0] // STRIDE, arch.padded[1] // STRIDE)
+        seed = self.first_seed
+        while True:
+            f = make_frame(seed, settings)
+            rgb, boxes = f.rgb, f.boxes
+            depth = inverse_depth(f.depth_m) if arch.depth else np.zeros((0, 0), np.float32)
+            if np.random.default_rng([seed, 1]).random() < 0.5:
+                rgb = rgb[:, ::-1]
+                depth = depth[:, ::-1]
+                w = arch.width_px
+                boxes = np.stack([w - 1 - boxes[:, 2], boxes[:, 1], w - 1 - boxes[:, 0], boxes[:, 3]], axis=1)
+            heat, box, weight = make_targets(boxes, grid)
+            rng = np.random.default_rng([seed, 2])
+            yield (
+                torch.from_numpy(randomise_colours(np.ascontiguousarray(rgb), rng)),
+                torch.from_numpy(randomise_colours(np.ascontiguousarray(rgb), rng)),
+                torch.from_numpy(np.ascontiguousarray(depth)),
+                torch.from_numpy(heat),
+                torch.from_numpy(box),
+                torch.from_numpy(weight),
+                torch.tensor(seed),
+            )
+            seed += 1
+
+
+_NOISE = np.random.default_rng(12345).standard_normal(1 << 21).astype(np.float32)
+"""Sensor-noise bank of :func:`randomise_colours` (8 MB)"""
+
+
+def randomise_colours(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Colour and lighting randomisation of one RGB image.
+
+    Hue rotation by any angle (about the grey axis), saturation x0.3 to x1.6, per-channel
+    gains 0.75 to 1.25 (white balance, coloured light), brightness x0.5 to x1.4, contrast
+    x0.6 to x1.3 (one 3 x 4 colour transform), gamma 0.7 to 1.5, Gaussian sensor noise with
+    sigma up to 6 levels, and a 3 x 3 blur for half of the images.
+
+    :param rgb: ``uint8 (H, W, 3)`` image
+    :param rng: random generator
+    :return: a new ``uint8 (H, W, 3)`` image
+    """
+    theta = rng.uniform(0.0, 2 * math.pi)
+    k = np.full(3, 1 / math.sqrt(3.0))
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    hue = math.cos(theta) * np.eye(3) + (1 - math.cos(theta)) * np.outer(k, k) + math.sin(theta) * kx  # Rodrigues
+    sat = rng.uniform(0.3, 1.6)
+    saturation = sat * np.eye(3) + (1 - sat) / 3.0
+    m = np.diag(rng.uniform(0.75, 1.25, 3) * rng.uniform(0.5, 1.4)) @ saturation @ hue
+    # contrast about the image's mean after the colour matrix: y = c M x + (1 - c) mean
+    contrast = rng.uniform(0.6, 1.3)
+    mean = float((m @ np.array(cv2.mean(rgb)[:3])).mean())
+    affine = np.hstack([contrast * m, np.full((3, 1), (1 - contrast) * mean)])
+    out = cv2.transform(rgb, affine)  # saturates to uint8
+    gamma = rng.uniform(0.7, 1.5)
+    out = cv2.LUT(out, np.clip(255.0 * (np.arange(256) / 255.0) ** gamma + 0.5, 0, 255).astype(np.uint8))
+    sigma = rng.uniform(0.0, 6.0)
+    if sigma > 0.5:
+        # a window of a fixed bank of normal samples at a random offset (drawing 170 000
+        # fresh samples per image cost more than rendering the frame)
+        start = int(rng.integers(0, _NOISE.size - out.size))
+        noisy = out.astype(np.float32)
+        noisy += _NOISE[start : start + out.size].reshape(out.shape) * np.float32(sigma)
+        out = np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)
+    if rng.random() < 0.5:
+        out = cv2.GaussianBlur(out, (3, 3), float(rng.uniform(0.3, 0.9)))
+    return out
+
+
+# ----------------------------------------------------------------------------- training
+def _lr(settings: TrainSettings, step: int, elapsed_s: float) -> float:
+    warm = min(1.0, (step + 1) / max(settings.warmup_steps, 1))
+    frac = min(1.0, elapsed_s / max(settings.minutes * 60.0, 1e-9))
+    if settings.max_steps is not None:
+        frac = max(frac, step / max(settings.max_steps, 1))
+    return settings.lr * warm * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * frac)))
+
+
+def _atomic_save(obj: object, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def train(
+    out: str | Path,
+    arch: Architecture = Architecture(),
+    settings: TrainSettings = TrainSettings(),
+    resume: bool = True,
+    progress: Callable[[int, float, dict[str, float]], None] | None = None,
+) -> dict:
+    """Train a detector and write its weights to ``out``.
+
+    :param out: the weights file to write; its checkpoint is ``<out>.ckpt``
+    :param arch: the network's shape (ignored when resuming: the checkpoint's is used)
+    :param settings: the training settings (``minutes`` may be raised when resuming)
+    :param resume: continue from ``<out>.ckpt`` when it exists
+    :param progress: called after every step with ``(step, elapsed_s, losses)``
+    :return: a summary (steps, frames rendered, elapsed seconds, last losses, resumed)
+    :raises ValueError: if the checkpoint belongs to other settings or cannot be read
+    """
+    out = Path(out)
+    ckpt_path = out.with_name(out.name + ".ckpt")
+    torch.set_num_threads(settings.threads)
+    state = None
+    if resume and ckpt_path.exists():
+        try:
+            state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+            arch = Architecture.from_dict(state["arch"])
+        except Exception as exc:  # a torn or foreign checkpoint: say so, do not guess
+            raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc} "
+                             "(delete it or pass --fresh)") from None
+    model = PointDetector(arch).to(memory_format=torch.channels_last)
+    opt = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
+    step, elapsed, next_seed, rendered = 0, 0.0, TRAIN_SEED0, 0
+    gen = torch.Generator().manual_seed(settings.seed)
+    pool: dict[str, torch.Tensor] = {}
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        step, elapsed, next_seed = int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"])
+        rendered = int(state["rendered"])
+        gen.set_state(state["generator"])
+    half = settings.batch // 2
+    loader = DataLoader(_Frames(arch, next_seed), batch_size=half, num_workers=1, persistent_workers=False,
+                        prefetch_factor=4)
+    fields = ("rgb", "depth", "heat", "box", "weight")  # the pool keeps the second colouring
+    filled, cursor = 0, 0
+    last_ckpt = time.perf_counter()
+    losses: dict[str, float] = {}
+    budget_s = settings.minutes * 60.0
+    model.train()
+    t0 = time.perf_counter() - elapsed
+    it = iter(loader)
+    try:
+        while elapsed < budget_s and (settings.max_steps is None or step < settings.max_steps):
+            item = next(it)
+            next_seed = int(item[6][-1]) + 1
+            rendered += len(item[6])
+            batch = [item[0], *item[2:6]]
+            fresh = [item[1], *item[2:6]]
+            if filled >= half:
+                pick = torch.randint(0, filled, (half,), generator=gen)
+                batch = [torch.cat([b, pool[k][pick]]) for b, k in zip(batch, fields)]
+            # the replay pool keeps the newest `replay` frames
+            if not pool:
+                pool = {k: torch.empty((settings.replay, *b.shape[1:]), dtype=b.dtype) for k, b in zip(fields, fresh)}
+            for i in range(len(fresh[0])):
+                for k, b in zip(fields, fresh):
+                    pool[k][cursor] = b[i]
+                cursor = (cursor + 1) % settings.replay
+                filled = min(filled + 1, settings.replay)
+            rgb, depth, heat, box, weight = batch
+            inp = to_input(rgb, arch, depth if arch.depth else None)
+            lr = _lr(settings, step, elapsed)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            heat_logits, dist = model(inp)
+            l_heat = focal_loss(heat_logits, heat)
+            l_box = giou_loss(decode_boxes(dist), box, weight)
+            loss = l_heat + l_box
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+            opt.step()
+            step += 1
+            elapsed = time.perf_counter() - t0
+            losses = {"loss": loss.item(), "heat": l_heat.item(), "box": l_box.item(), "lr": lr}
+            if progress is not None:
+                progress(step, elapsed, losses)
+            if time.perf_counter() - last_ckpt >= settings.checkpoint_every_s:
+                _checkpoint(ckpt_path, model, opt, arch, step, elapsed, next_seed, rendered, gen)
+                last_ckpt = time.perf_counter()
+    finally:
+        del it, loader
+    _checkpoint(ckpt_path, model, opt, arch, step, elapsed, next_seed, rendered, gen)
+    meta = {"steps": step, "frames_rendered": rendered, "train_minutes": round(elapsed / 60.0, 2),
+            "batch": settings.batch, "last_losses": losses}
+    model.eval()
+    save_weights(model, out, meta)
+    return {**meta, "resumed": state is not None, "checkpoint": str(ckpt_path), "weights": str(out)}
+
+
+def _checkpoint(path: Path, model: PointDetector, opt: torch.optim.Optimizer, arch: Architecture, step: int,
+                elapsed: float, next_seed: int, rendered: int, gen: torch.Generator) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_save(
+        {"arch": arch.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+         "elapsed_s": elapsed, "next_seed": next_seed, "rendered": rendered, "generator": gen.get_state()},
+        path,
+    )

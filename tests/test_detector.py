@@ -1,0 +1,162 @@
+"""The learned detector: data, targets, a tiny training run, the shipped weights, bad files, the plug-in."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+import torch
+
+from dt_highway.cli import main
+from dt_highway.perception.detect import iou
+from dt_highway.perception.learned import SHIPPED, Architecture, LearnedDetector, PointDetector, load_weights, save_weights
+from dt_highway.perception.learned.data import TRAIN_SEED0, SceneSettings, make_frame, scored
+from dt_highway.perception.learned.evaluate import evaluate
+from dt_highway.perception.learned.model import cell_centres, make_targets, peaks
+from dt_highway.perception.learned.train import TrainSettings, randomise_colours, train
+
+TINY = Architecture(width_px=128, height_px=72, channels=(8, 8, 16, 16, 16), features=8)
+
+
+def test_frames_are_pure_functions_of_their_seed_and_label_the_visible_boxes() -> None:
+    a, b = make_frame(13), make_frame(13)
+    make_frame(999)
+    c = make_frame(13)
+    assert np.array_equal(a.rgb, c.rgb) and np.array_equal(a.boxes, c.boxes) and np.array_equal(b.boxes, c.boxes)
+    assert a.rgb.shape == (180, 320, 3)
+    # the labels are the renderer's visible boxes; scored = KITTI moderate (>= 12 px tall of 180, visibility >= 0.5)
+    boxes, keep = scored(a.frame)
+    assert np.array_equal(boxes, a.boxes)
+    tall = (a.boxes[:, 3] - a.boxes[:, 1]) >= 180 * 25 / 375
+    assert not (keep & ~tall).any()
+    n_scored = sum(make_frame(s).scored.sum() for s in range(40))
+    assert n_scored > 60  # the generator shows vehicles worth scoring
+
+
+def test_targets_put_one_peak_per_box_and_the_box_on_its_cells() -> None:
+    f = make_frame(21)
+    heat, box, weight = make_targets(f.boxes, (48, 80))
+    xs, ys = cell_centres(48, 80)
+    peaks_at = np.argwhere(heat[0] == 1.0)
+    centre_cells = {(int(np.floor(((b[1] + b[3]) / 2 + 0.5) / 4)), int(np.floor(((b[0] + b[2]) / 2 + 0.5) / 4)))
+                    for b in f.boxes}
+    assert {tuple(p) for p in peaks_at} == centre_cells
+    # every weighted cell holds one of the boxes, and lies inside it
+    cells = np.argwhere(weight[0] > 0)
+    assert len(cells) >= len(centre_cells)
+    for j, i in cells:
+        t = box[:, j, i]
+        assert any(np.allclose(t, b) for b in f.boxes.astype(np.float32))
+        assert t[0] - 1e-3 <= xs[i] <= t[2] + 1e-3 or (j, i) in centre_cells
+
+
+def test_colour_randomisation_changes_colours_not_geometry_and_is_seeded() -> None:
+    rgb = make_frame(5).rgb
+    a = randomise_colours(rgb, np.random.default_rng(1))
+    b = randomise_colours(rgb, np.random.default_rng(1))
+    c = randomise_colours(rgb, np.random.default_rng(2))
+    assert a.shape == rgb.shape and a.dtype == np.uint8
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert np.abs(a.astype(int) - rgb).mean() > 5
+
+
+def test_decoding_reads_boxes_back_from_perfect_outputs() -> None:
+    boxes = np.array([[40.5, 60.5, 90.5, 100.5], [200.5, 70.5, 215.5, 82.5]])
+    heat, box, weight = make_targets(boxes, (48, 80))
+    logits = torch.from_numpy(np.where(heat == 1.0, 8.0, -8.0))[None]
+    xs, ys = cell_centres(48, 80)
+    t = torch.from_numpy(box)
+    dist = torch.stack([xs[None, :] - t[0], ys[:, None] - t[1], t[2] - xs[None, :], t[3] - ys[:, None]])[None].float()
+    found, scores = peaks(logits.float(), dist, min_score=0.5)[0]
+    assert len(found) == 2 and (scores > 0.99).all()
+    assert np.allclose(np.sort(found, axis=0), np.sort(boxes, axis=0), atol=1e-4)
+
+
+def test_a_tiny_training_run_lowers_the_loss_and_resumes(tmp_path) -> None:
+    losses: list[float] = []
+    out = tmp_path / "tiny.pt"
+    settings = TrainSettings(minutes=5.0, batch=8, lr=3e-3, warmup_steps=5, replay=64, max_steps=40,
+                             checkpoint_every_s=3600)
+    r = train(out, TINY, settings, progress=lambda s, e, l: losses.append(l["loss"]))
+    assert r["steps"] == 40 and not r["resumed"] and out.is_file()
+    first, last = np.mean(losses[:5]), np.mean(losses[-8:])
+    assert last < 0.75 * first, (first, last)
+    model, meta = load_weights(out)
+    assert meta["steps"] == 40 and model.arch == TINY
+    # the same command again resumes from the checkpoint and goes on to the new step limit
+    r2 = train(out, TINY, TrainSettings(**{**settings.__dict__, "max_steps": 45}))
+    assert r2["resumed"] and r2["steps"] == 45
+
+
+def test_bad_weights_files_give_clear_errors(tmp_path) -> None:
+    model = PointDetector(TINY)
+    good = save_weights(model, tmp_path / "good.pt", {"steps": 0})
+    data = good.read_bytes()
+    (tmp_path / "truncated.pt").write_bytes(data[: len(data) // 2])
+    (tmp_path / "text.pt").write_text("not weights")
+    torch.save({"format": "dt-highway-detector", "format_version": 1, "arch": TINY.to_dict(), "state_dict": {}},
+               tmp_path / "empty.pt")
+    torch.save({"some": "dict"}, tmp_path / "foreign.pt")
+    # any Python object beyond plain containers and tensors (here a Fraction) is refused
+    torch.save({"format": "dt-highway-detector", "x": Fraction(1, 3)}, tmp_path / "objects.pt")
+    assert load_weights(good)[0].arch == TINY
+    cases = {
+        "truncated.pt": "truncated", "text.pt": "not a torch zip archive", "empty.pt": "tensors missing",
+        "foreign.pt": "not a dt-highway detector weights file", "objects.pt": "refused",
+    }
+    for name, words in cases.items():
+        with pytest.raises(ValueError, match=words):
+            load_weights(tmp_path / name)
+    with pytest.raises(FileNotFoundError):
+        load_weights(tmp_path / "missing.pt")
+
+
+def test_bad_weights_on_the_command_line_are_one_line(tmp_path, capsys) -> None:
+    (tmp_path / "bad.pt").write_text("x")
+    assert main(["detector", "eval", "--weights", str(tmp_path / "bad.pt"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "not a detector weights file" in err
+    assert main(["detector", "eval", "--weights", str(tmp_path / "none.pt"), "--quiet"]) == 2
+    assert "weights file not found" in capsys.readouterr().err
+    assert main(["matching", "--out", str(tmp_path / "m"), "--detectors", "yolo", "--quiet"]) == 2
+    assert "--detectors takes simulated and/or learned" in capsys.readouterr().err
+
+
+def test_held_out_seeds_never_meet_the_training_seeds() -> None:
+    det = LearnedDetector()
+    with pytest.raises(ValueError, match="held-out seeds"):
+        evaluate(det, frames=10, seed=TRAIN_SEED0 - 5)
+
+
+def test_the_shipped_weights_reach_the_ap_targets_on_a_small_seeded_set() -> None:
+    assert SHIPPED.is_file() and SHIPPED.stat().st_size < 5e6
+    r = evaluate(LearnedDetector(), frames=100, seed=0)
+    assert r["scored_vehicles"] > 150
+    assert r["AP50"] >= 0.95, r
+    assert r["AP75"] >= 0.85, r
+
+
+def test_the_learned_detector_scales_boxes_to_larger_frames() -> None:
+    det = LearnedDetector()
+    f = make_frame(7, SceneSettings(640, 360, vary_camera=False))
+    found = det.detect(f.frame)
+    gt = f.boxes[f.scored]
+    assert len(gt) >= 1
+    best = iou(gt, found.boxes).max(axis=1)
+    assert np.median(best) >= 0.7, best
+
+
+def test_the_env_runs_the_learned_detector_by_config() -> None:
+    from dt_highway.env import DTHighwayEnv
+
+    env = DTHighwayEnv(config={"camera": {"enabled": True, "width_px": 320, "height_px": 180},
+                               "fusion": {"enabled": True}, "detector": {"kind": "learned"},
+                               "highway": {"vehicles_count": 20, "duration": 5.0}})
+    env.reset(seed=0)
+    type_name = type(env.detector).__name__
+    for _ in range(3):
+        _, _, term, trunc, info = env.step(1)
+    env.close()
+    assert type_name == "LearnedDetector"
+    assert "adas" in info
