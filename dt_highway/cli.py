@@ -430,6 +430,9 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
               bar_format="{l_bar}{bar}| {n:.0f}/{total} s [{elapsed}<{remaining}{postfix}]") as bar:
 
         def progress(step: int, elapsed_s: float, losses: dict[str, float]) -> None:
+            if bar.n == 0 and elapsed_s > 5:  # resumed: time left counts from here
+                bar.initial = elapsed_s
+                bar.start_t = bar._time()
             bar.n = min(elapsed_s, total)
             if step % 10 == 0:
                 bar.set_postfix(step=step, loss=f"{losses['loss']:.3f}", refresh=False)

@@ -329,6 +329,9 @@ class DetectorConfig(_Section):
     )
     weights: str | None = Field(None, description="learned: weights file (None: the shipped weights)")
     min_score: float = Field(0.3, ge=0, le=1, description="learned: least score of a detection [-]")
+    scale: Literal["resize", "native"] = Field(
+        "resize", description="learned: resize frames to the network's input size, or read them at their own size"
+    )
     jitter: float = Field(0.03, ge=0, le=0.5, description="box edge noise, fraction of the box's size [-]")
     miss_height_px: float = Field(6.0, ge=0, description="visible height missed half of the time [px]")
     miss_visibility: float = Field(0.25, ge=0, le=1, description="visibility missed half of the time [-]")

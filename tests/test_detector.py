@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from fractions import Fraction
 
 import numpy as np
@@ -152,7 +153,7 @@ def test_the_env_runs_the_learned_detector_by_config() -> None:
 
     env = DTHighwayEnv(config={"camera": {"enabled": True, "width_px": 320, "height_px": 180},
                                "fusion": {"enabled": True}, "detector": {"kind": "learned"},
-                               "highway": {"vehicles_count": 20, "duration": 5.0}})
+                               "highway": {"vehicles_count": 20, "duration": 5.0}, "twin": {"preroll_s": 4.0}})
     env.reset(seed=0)
     type_name = type(env.detector).__name__
     for _ in range(3):
@@ -160,3 +161,32 @@ def test_the_env_runs_the_learned_detector_by_config() -> None:
     env.close()
     assert type_name == "LearnedDetector"
     assert "adas" in info
+
+
+def test_detector_commands_train_resume_evaluate_and_bench(tmp_path, capsys) -> None:
+    out = tmp_path / "d.pt"
+    small = ["--width", "128", "--height", "72", "--batch", "4", "--quiet"]
+    assert main(["detector", "train", "--out", str(out), "--max-steps", "3", *small]) == 0
+    printed = capsys.readouterr().out
+    assert "trained 3 steps" in printed and str(out) in printed
+    assert main(["detector", "train", "--out", str(out), "--max-steps", "5", *small]) == 0
+    again = capsys.readouterr()
+    assert "trained 5 steps" in again.out and "resumed" in again.out and "resuming from" in again.err
+    assert main(["detector", "eval", "--weights", str(out), "--frames", "4", "--json", "--quiet"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["frames"] == 4 and r["image_px"] == [128, 72] and 0.0 <= r["AP50"] <= 1.0
+    assert main(["bench", "detector", "--weights", str(out), "--seconds", "0.2", "--batch", "2", "--json"]) == 0
+    b = json.loads(capsys.readouterr().out)
+    assert b["frames_per_s_batched"] > 0 and b["single_frame_ms"]["median"] > 0
+
+
+def test_matching_reports_both_detectors(tmp_path, capsys) -> None:
+    out = tmp_path / "m"
+    tiny = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=40", "--set", "twin.preroll_s=4",
+            "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40",
+            "--set", "camera.width_px=320", "--set", "camera.height_px=180"]
+    assert main(["matching", "--out", str(out), "--frames", "3", "--quiet", "--detectors", "simulated,learned", *tiny]) == 0
+    both = json.loads((out / "detectors.json").read_text())["accuracy"]
+    assert set(both) == {"simulated", "learned"} and set(both["learned"]) == {"baseline", "fusion", "joint", "tracked"}
+    for kind in both:
+        assert json.loads((out / kind / "summary.json").read_text())["settings"]["detector"]["kind"] == kind

@@ -31,18 +31,18 @@ def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -
 
         path = Path(cfg.weights) if cfg.weights else SHIPPED
         stamp = path.stat().st_mtime_ns if path.is_file() else 0
-        return _learned(str(path.resolve()), stamp, cfg.min_score)
-    fields = cfg.model_dump(exclude={"kind", "weights", "min_score"})
+        return _learned(str(path.resolve()), stamp, cfg.min_score, cfg.scale)
+    fields = cfg.model_dump(exclude={"kind", "weights", "min_score", "scale"})
     return SimulatedDetector(SimulatedDetectorSettings(**fields), rng)
 
 
 @functools.lru_cache(maxsize=4)
-def _learned(weights: str, stamp: int, min_score: float) -> Detector:
+def _learned(weights: str, stamp: int, min_score: float, scale: str) -> Detector:
     # one network per weights file (and version of it) and process: episodes and envs
     # share it (it has no state)
     from dt_highway.perception.learned.detector import LearnedDetector
 
-    return LearnedDetector(weights, min_score)
+    return LearnedDetector(weights, min_score, scale=scale)
 
 
 def fusion_settings(cfg: FusionConfig, method: str | None = None) -> FusionSettings:

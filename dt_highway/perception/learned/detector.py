@@ -14,23 +14,35 @@ from dt_highway.perception.learned.model import inverse_depth, peaks, to_input
 from dt_highway.perception.learned.weights import load_weights
 
 
+SCALES = ("resize", "native")
+"""How frames of another size than the network's input are read"""
+
+
 class LearnedDetector:
     """Finds vehicles in camera frames with a trained :class:`~dt_highway.perception.learned.model.PointDetector`.
 
-    Frames of another size than the network's input are resized to it (``cv2.INTER_AREA``)
-    and the boxes scaled back, so one set of weights serves any camera with the same aspect
-    ratio. It reads ``frame.rgb`` (and ``frame.depth_m`` for a depth model) only.
+    Frames of another size than the network's input are, with ``scale="resize"``, resized to
+    it (``cv2.INTER_AREA``) and the boxes scaled back: the cost of a frame stays that of the
+    network's size, but vehicles shrink with the frame. With ``scale="native"`` the (fully
+    convolutional) network reads the frame as it is: a 640 x 360 frame costs four times a
+    320 x 180 one, and far vehicles keep their pixels. It reads ``frame.rgb`` (and
+    ``frame.depth_m`` for a depth model) only.
 
     :param weights: a weights file (``None``: the shipped weights)
     :param min_score: least score of a reported detection [-]
     :param threads: torch threads (``None``: leave torch's setting)
+    :param scale: ``"resize"`` or ``"native"`` (see above)
     :raises FileNotFoundError: if the weights file does not exist
     :raises ValueError: if it is not a complete weights file
     """
 
-    def __init__(self, weights: str | Path | None = None, min_score: float = 0.3, threads: int | None = None) -> None:
+    def __init__(self, weights: str | Path | None = None, min_score: float = 0.3, threads: int | None = None,
+                 scale: str = "resize") -> None:
         if not 0.0 <= min_score <= 1.0:
             raise ValueError(f"min_score must be in [0, 1] (got {min_score})")
+        if scale not in SCALES:
+            raise ValueError(f"scale must be one of {', '.join(SCALES)} (got '{scale}')")
+        self.scale = scale
         self.model, self.meta = load_weights(weights)
         self.arch = self.model.arch
         self.min_score = min_score
@@ -59,7 +71,7 @@ class LearnedDetector:
             return []
         h, w = rgbs[0].shape[:2]
         size = (arch.width_px, arch.height_px)
-        resize = (w, h) != size
+        resize = (w, h) != size and self.scale == "resize"
         if resize:
             rgbs = [cv2.resize(im, size, interpolation=cv2.INTER_AREA) for im in rgbs]
         inv = None
@@ -72,7 +84,7 @@ class LearnedDetector:
         with torch.inference_mode():
             heat, dist = self.model(to_input(batch, arch, inv))
             found = peaks(heat, dist, min_score=self.min_score if min_score is None else min_score)
-        sx, sy = w / arch.width_px, h / arch.height_px
+        sx, sy = w / size[0], h / size[1]
         out = []
         for boxes, scores in found:
             if resize:

@@ -126,7 +126,7 @@ class PointDetector(nn.Module):
 def to_input(rgb: torch.Tensor, arch: Architecture, inv_depth: torch.Tensor | None = None) -> torch.Tensor:
     """Normalise and pad a batch for the network.
 
-    :param rgb: ``uint8 (B, H, W, 3)`` images at the architecture's size
+    :param rgb: ``uint8 (B, H, W, 3)`` images (any size: the network is fully convolutional)
     :param arch: the architecture
     :param inv_depth: ``float (B, H, W)`` inverse depth channel in ``[0, 1]`` (depth models)
     :return: ``float32 (B, C, H', W')`` padded with zeros (channels-last memory)
@@ -138,7 +138,7 @@ def to_input(rgb: torch.Tensor, arch: Architecture, inv_depth: torch.Tensor | No
         x = torch.cat([x, inv_depth[:, None].float()], dim=1)
     c = x.shape[1]
     x = (x - MEAN[:, :c]) / STD[:, :c]
-    hp, wp = arch.padded
+    hp, wp = -(-x.shape[2] // PAD_TO) * PAD_TO, -(-x.shape[3] // PAD_TO) * PAD_TO
     x = F.pad(x, (0, wp - x.shape[3], 0, hp - x.shape[2]))
     return x.contiguous(memory_format=torch.channels_last)
 
