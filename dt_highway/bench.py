@@ -357,3 +357,94 @@ def bench_detector(weights: str | None = None, batch: int = 32, seconds: float =
         "target_frames_per_s": 200,
         "target_met": bool(batched_fps >= 200),
     }
+
+
+SIM_SCENARIO = {"vehicles_count": 50, "lanes_count": 4, "simulation_frequency": 15, "policy_frequency": 1}
+"""highway-v0's scenario: 50 vehicles, 4 lanes, 15 Hz physics, one decision per second"""
+
+
+def _steps_per_s(env: Any, seed: int, steps: int, action: int = 1) -> tuple[float, list[Any]]:
+    """Time ``steps`` env steps (the ego keeps ``action``; a crash does not stop the clock)."""
+    env.reset(seed=seed)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        env.step(action)
+    return steps / (time.perf_counter() - t0), env.road.vehicles
+
+
+def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats: int = 1,
+              profile: str | None = None) -> dict[str, Any]:
+    """Stock ``highway-v0`` against our env on highway-v0's scenario, in one process.
+
+    Measured, each for ``steps`` env steps from ``reset(seed)`` with the ego idling (a crash
+    does not stop the run): stock highway-v0; our env with the twin on and the camera off,
+    with plain IDM traffic (``traffic.driver_types = false``: the same models as stock) and
+    with its driver types (the default); and our full ADAS pipeline (twin, camera, simulated
+    detector, fusion). Deviation: stock and ours (plain IDM traffic) run side by side for
+    ``deviation_s`` of simulated time; the largest distance between the same vehicle's
+    positions is reported.
+
+    :param steps: env steps per measurement [-]
+    :param seed: reset seed
+    :param deviation_s: simulated time of the deviation run [s]
+    :param repeats: measurements per env (the best is kept) [-]
+    :param profile: write a cProfile of one run of our default env to this file
+    :return: steps/s per env, ratios to stock, the deviation [m], the ADAS pipeline's step time
+    """
+    import gymnasium as gym
+    import highway_env  # noqa: F401  (registers highway-v0)
+    import numpy as np
+
+    from dt_highway.env import DTHighwayEnv
+
+    hw = {**SIM_SCENARIO, "duration": 10_000}
+    ours_hw = {**hw, "road_length": 10_000.0}
+    envs: dict[str, Any] = {
+        "stock_highway_v0": gym.make("highway-v0", config=hw).unwrapped,
+        "ours_plain_idm": DTHighwayEnv(config={"highway": ours_hw, "traffic": {"driver_types": False}}),
+        "ours_driver_types": DTHighwayEnv(config={"highway": ours_hw}),
+        "ours_adas_pipeline": DTHighwayEnv(config={"highway": ours_hw, "camera": {"enabled": True},
+                                                   "fusion": {"enabled": True}}),
+    }
+    rates: dict[str, float] = {}
+    for name, env in envs.items():
+        rates[name] = max(_steps_per_s(env, seed, steps)[0] for _ in range(repeats))
+    if profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
+        _steps_per_s(envs["ours_driver_types"], seed, steps)
+        prof.disable()
+        prof.dump_stats(profile)
+    # deviation: lockstep runs of stock and ours (plain IDM traffic)
+    stock, ours = envs["stock_highway_v0"], envs["ours_plain_idm"]
+    stock.reset(seed=seed)
+    ours.reset(seed=seed)
+    n = int(round(deviation_s * SIM_SCENARIO["policy_frequency"]))
+    worst, same_count = 0.0, True
+    for _ in range(n):
+        stock.step(1)
+        ours.step(1)
+        a = np.array([v.position for v in stock.road.vehicles])
+        b = np.array([v.position for v in ours.road.vehicles])
+        if a.shape != b.shape:
+            same_count = False
+            break
+        worst = max(worst, float(np.abs(a - b).max()))
+    for env in envs.values():
+        env.close()
+    stock_rate = rates["stock_highway_v0"]
+    return {
+        "steps_per_s": {k: round(v, 2) for k, v in rates.items()},
+        "ratio_to_stock": {k: round(v / stock_rate, 2) for k, v in rates.items() if k != "stock_highway_v0"},
+        "adas_step_ms": round(1000.0 / rates["ours_adas_pipeline"], 1),
+        "stock_step_ms": round(1000.0 / stock_rate, 1),
+        "max_deviation_m": worst if same_count else None,
+        "deviation_sim_s": deviation_s,
+        "same_vehicles": same_count,
+        "scenario": {**SIM_SCENARIO, "steps": steps, "seed": seed, "ego_action": "IDLE"},
+        "target_ratio": 5.0,
+        "target_met": bool(rates["ours_driver_types"] >= 5 * stock_rate and rates["ours_plain_idm"] >= 5 * stock_rate
+                           and rates["ours_adas_pipeline"] >= stock_rate),
+    }

@@ -494,6 +494,27 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def cmd_bench_sim(args: argparse.Namespace) -> int:
+    from dt_highway.bench import bench_sim
+
+    result = bench_sim(args.steps, args.seed, args.deviation_s, args.repeats, args.profile)
+    if args.json:
+        print(dump_json(result))
+    else:
+        r, q = result["steps_per_s"], result["ratio_to_stock"]
+        print(f"env steps/s (50 vehicles, 15 Hz, 1 decision/s): stock highway-v0 {r['stock_highway_v0']}, ours plain IDM "
+              f"{r['ours_plain_idm']} (x{q['ours_plain_idm']}), ours with driver types {r['ours_driver_types']} "
+              f"(x{q['ours_driver_types']}), ours with the ADAS pipeline {r['ours_adas_pipeline']} "
+              f"({result['adas_step_ms']} ms per step; stock {result['stock_step_ms']} ms)")
+        dev = result["max_deviation_m"]
+        print(f"deviation from stock over {result['deviation_sim_s']:g} s simulated (plain IDM traffic): "
+              + (f"{dev:.3g} m" if dev is not None else "vehicle counts differ"))
+        print(f"target x{result['target_ratio']:g} and ADAS step <= stock step: {'met' if result['target_met'] else 'NOT met'}")
+        if args.profile:
+            print(f"wrote {args.profile}")
+    return 0
+
+
 def cmd_bench_detector(args: argparse.Namespace) -> int:
     from dt_highway.bench import bench_detector
 
@@ -660,6 +681,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=_size, default=(320, 180), help="frame size WxH (default 320x180)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_detector)
+    p = bsub.add_parser("sim", help="stock highway-v0 vs our env (steps/s, ratio, trajectory deviation), one process")
+    p.add_argument("--steps", type=_positive(int, "--steps"), default=30, help="env steps per measurement (default 30)")
+    p.add_argument("--seed", type=_seed, default=0, help="reset seed (default 0)")
+    p.add_argument("--deviation-s", type=_positive(float, "--deviation-s"), default=30.0,
+                   help="simulated seconds of the stock-vs-ours deviation run (default 30)")
+    p.add_argument("--repeats", type=_positive(int, "--repeats"), default=1, help="measurements per env, best kept (default 1)")
+    p.add_argument("--profile", metavar="FILE", help="also write a cProfile of our env (driver types) to FILE")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_bench_sim)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

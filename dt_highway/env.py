@@ -313,8 +313,13 @@ class DTHighwayEnv(HighwayEnv):
     def _reset(self) -> None:
         self._safety_on = False
         self._build_persistent()
-        rngs = self._component_rngs()
         cfg = self.dt_config
+        self._create_road()
+        if not cfg.traffic.driver_types:
+            # highway-env's own traffic draws first, as in HighwayEnv._reset: a seed then gives
+            # stock highway-v0's vehicles, speeds and behaviours exactly
+            super()._create_vehicles()
+        rngs = self._component_rngs()
         self.traffic = TrafficManager(cfg.traffic, self.population, rngs["traffic"])
         self.uplink = Uplink(cfg.twin.uplink, rngs["uplink"])
         self.downlink = Downlink(cfg.twin.downlink, rngs["downlink"])
@@ -328,13 +333,11 @@ class DTHighwayEnv(HighwayEnv):
             # the twin clock runs on across episodes: this episode starts 1 s after the last
             self.twin_offset_s = self.twin.now_s + 1.0 + preroll
             self.twin.now_s = self.twin_now_s
-        self._create_road()
         if cfg.traffic.driver_types:
             self._create_typed_vehicles()
             if preroll_steps > 0:
                 self._preroll(preroll_steps)
         else:
-            super()._create_vehicles()
             connected = self.traffic.rng.random(len(self.road.vehicles)) < cfg.twin.connected_fraction
             for i, v in enumerate(self.road.vehicles):
                 v.dt_id = i

@@ -88,6 +88,9 @@ def test_a_tiny_training_run_lowers_the_loss_and_resumes(tmp_path) -> None:
     # the same command again resumes from the checkpoint and goes on to the new step limit
     r2 = train(out, TINY, TrainSettings(**{**settings.__dict__, "max_steps": 45}))
     assert r2["resumed"] and r2["steps"] == 45
+    # a checkpoint of another network is not silently resumed
+    with pytest.raises(ValueError, match="holds another network"):
+        train(out, Architecture(**{**TINY.__dict__, "depth": True}), settings)
 
 
 def test_bad_weights_files_give_clear_errors(tmp_path) -> None:

@@ -60,3 +60,21 @@ def test_trajectories_and_collisions_are_the_same_as_with_highway_envs_road():
         assert fast.keys() == stock.keys()
         for vid in fast:
             assert np.array_equal(fast[vid][0], stock[vid][0]) and fast[vid][1:] == stock[vid][1:]
+
+
+def test_plain_idm_traffic_follows_stock_highway_v0_exactly():
+    """Driver types off: the same seed gives stock highway-v0's vehicles and trajectories (twin on, FastRoad)."""
+    settings = {"vehicles_count": 50, "lanes_count": 4, "simulation_frequency": 15, "policy_frequency": 1, "duration": 40}
+    stock = gym.make("highway-v0", config=settings).unwrapped
+    ours = gym.make("dt-highway-v0", config={"highway": {**settings, "road_length": 10000.0},
+                                             "traffic": {"driver_types": False}}).unwrapped
+    stock.reset(seed=1)
+    ours.reset(seed=1)
+    assert ours.twin is not None and isinstance(ours.road, FastRoad)
+    for _ in range(8):
+        stock.step(1)
+        ours.step(1)
+        a = np.array([v.position for v in stock.road.vehicles])
+        b = np.array([v.position for v in ours.road.vehicles])
+        assert a.shape == b.shape and np.abs(a - b).max() <= 1e-6
+    assert ours.twin_view is not None  # the twin ran all along

@@ -180,7 +180,7 @@ def train(
     """Train a detector and write its weights to ``out``.
 
     :param out: the weights file to write; its checkpoint is ``<out>.ckpt``
-    :param arch: the network's shape (ignored when resuming: the checkpoint's is used)
+    :param arch: the network's shape (a checkpoint of another shape is refused)
     :param settings: the training settings (``minutes`` may be raised when resuming)
     :param resume: continue from ``<out>.ckpt`` when it exists
     :param progress: called after every step with ``(step, elapsed_s, losses)``
@@ -194,10 +194,13 @@ def train(
     if resume and ckpt_path.exists():
         try:
             state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-            arch = Architecture.from_dict(state["arch"])
+            saved = Architecture.from_dict(state["arch"])
         except Exception as exc:  # a torn or foreign checkpoint: say so, do not guess
             raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc} "
                              "(delete it or pass --fresh)") from None
+        if saved != arch:
+            raise ValueError(f"{ckpt_path} holds another network ({_describe(saved)}; asked: {_describe(arch)}): "
+                             "give the same options or pass --fresh")
     model = PointDetector(arch).to(memory_format=torch.channels_last)
     opt = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
     step, elapsed, next_seed, rendered = 0, 0.0, TRAIN_SEED0, 0
@@ -259,6 +262,10 @@ def train(
             if time.perf_counter() - last_ckpt >= settings.checkpoint_every_s:
                 _checkpoint(ckpt_path, model, opt, arch, step, elapsed, next_seed, rendered, gen)
                 last_ckpt = time.perf_counter()
+    except KeyboardInterrupt:
+        # stopped by the user: keep every step done so far, then stop
+        _checkpoint(ckpt_path, model, opt, arch, step, elapsed, next_seed, rendered, gen)
+        raise
     finally:
         del it, loader
     _checkpoint(ckpt_path, model, opt, arch, step, elapsed, next_seed, rendered, gen)
@@ -267,6 +274,10 @@ def train(
     model.eval()
     save_weights(model, out, meta)
     return {**meta, "resumed": state is not None, "checkpoint": str(ckpt_path), "weights": str(out)}
+
+
+def _describe(arch: Architecture) -> str:
+    return f"{arch.width_px}x{arch.height_px}, {'RGB + depth' if arch.depth else 'RGB'}, channels {list(arch.channels)}"
 
 
 def _checkpoint(path: Path, model: PointDetector, opt: torch.optim.Optimizer, arch: Architecture, step: int,
