@@ -81,8 +81,9 @@ def test_a_tiny_training_run_lowers_the_loss_and_resumes(tmp_path) -> None:
                              checkpoint_every_s=3600)
     r = train(out, TINY, settings, progress=lambda s, e, l: losses.append(l["loss"]))
     assert r["steps"] == 40 and not r["resumed"] and out.is_file()
+    # seeded: 8.32 -> 5.99 here; the margin allows for other CPUs' floating-point sums
     first, last = np.mean(losses[:5]), np.mean(losses[-8:])
-    assert last < 0.75 * first, (first, last)
+    assert last < 0.85 * first, (first, last)
     model, meta = load_weights(out)
     assert meta["steps"] == 40 and model.arch == TINY
     # the same command again resumes from the checkpoint and goes on to the new step limit

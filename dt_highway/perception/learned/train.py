@@ -56,7 +56,8 @@ class TrainSettings:
     :param replay: frames kept for replay [-]
     :param threads: torch threads of the trainer (the data worker takes what is left) [-]
     :param checkpoint_every_s: seconds between checkpoints [s]
-    :param seed: seed of the replay choices, flips and colours (frames have their own seeds)
+    :param seed: seed of the initial weights and the replay choices (frames, flips and colours
+        follow from the frames' own seeds)
     :param max_steps: stop after this many steps, whatever the time (tests) [-]
     """
 
@@ -201,7 +202,9 @@ def train(
         if saved != arch:
             raise ValueError(f"{ckpt_path} holds another network ({_describe(saved)}; asked: {_describe(arch)}): "
                              "give the same options or pass --fresh")
-    model = PointDetector(arch).to(memory_format=torch.channels_last)
+    with torch.random.fork_rng():  # seeded initial weights, without touching the caller's torch RNG
+        torch.manual_seed(settings.seed)
+        model = PointDetector(arch).to(memory_format=torch.channels_last)
     opt = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
     step, elapsed, next_seed, rendered = 0, 0.0, TRAIN_SEED0, 0
     gen = torch.Generator().manual_seed(settings.seed)
