@@ -7,7 +7,8 @@ of vehicles (``step``). With 50 vehicles those two loops are most of a simulatio
 :class:`FastRoad` keeps highway-env's rules and replaces the loops:
 
 * ``neighbour_vehicles`` on a straight lane computes all vehicles' lane coordinates at once
-  (numpy) and picks the same leader and follower, ties included (highway-env keeps the last
+  (numpy; the positions are gathered once per ``act`` phase, in which nobody moves) and
+  picks the same leader and follower, ties included (highway-env keeps the last
   of equal fronts and the first of equal rears in ``vehicles + objects`` order). On our
   straight road the lane directions are axis-aligned, so the coordinates are the very same
   floats as highway-env's. Curved lanes and connected-lane searches use highway-env's code.
@@ -46,6 +47,30 @@ def _searchable(cls: type) -> bool:
 class FastRoad(Road):
     """highway-env's road with vectorised neighbour search and a collision broad phase."""
 
+    _in_act = False
+    _index: tuple[list, np.ndarray, dict[int, int]] | None = None
+
+    def act(self) -> None:
+        """Decide every vehicle's action (highway-env's loop). Deciding moves nobody, so the
+        searchable vehicles and their positions are gathered once for all the searches of
+        this phase, not once per search."""
+        self._in_act, self._index = True, None
+        try:
+            super().act()
+        finally:
+            self._in_act, self._index = False, None
+
+    def _searchables(self) -> tuple[list, np.ndarray, dict[int, int]]:
+        """The vehicles and objects searches consider, their positions ``(N, 2)`` [m] and index by ``id``."""
+        if self._index is not None:
+            return self._index
+        items = [v for v in self.vehicles + self.objects if _searchable(type(v))]
+        pos = np.array([v.position for v in items], dtype=float).reshape(-1, 2)
+        index = (items, pos, {id(v): i for i, v in enumerate(items)})
+        if self._in_act:
+            self._index = index
+        return index
+
     def neighbour_vehicles(self, vehicle, lane_index=None):  # noqa: ANN001, ANN201 - highway-env's signature
         """The preceding and following vehicles of ``vehicle`` on a lane, as highway-env finds them."""
         lane_index = lane_index or vehicle.lane_index
@@ -54,15 +79,17 @@ class FastRoad(Road):
         lane = self.network.get_lane(lane_index)
         if self.neighbour_vehicles_connected_lanes or type(lane) is not StraightLane:
             return super().neighbour_vehicles(vehicle, lane_index)
-        others = [v for v in self.vehicles + self.objects if v is not vehicle and _searchable(type(v))]
+        others, pos, index = self._searchables()
         if not others:
             return None, None
         s = lane.local_coordinates(vehicle.position)[0]
-        pos = np.array([v.position for v in others], dtype=float)
         d = pos - lane.start
         long = d[:, 0] * lane.direction[0] + d[:, 1] * lane.direction[1]
         lat = d[:, 0] * lane.direction_lateral[0] + d[:, 1] * lane.direction_lateral[1]
         on = (np.abs(lat) <= lane.width / 2 + 1) & (-lane.VEHICLE_LENGTH <= long) & (long < lane.length + lane.VEHICLE_LENGTH)
+        me = index.get(id(vehicle))
+        if me is not None:
+            on[me] = False  # not its own neighbour
         front = np.flatnonzero(on & (long >= s))
         rear = np.flatnonzero(on & (long < s))
         v_front = v_rear = None
