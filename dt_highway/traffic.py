@@ -132,14 +132,14 @@ class TypedDriverVehicle(IDMVehicle):
         lane = self.road.network.get_lane(target_lane_index)
         s, offset = lane.local_coordinates(self.position)
         speed = max(abs(self.speed), 1e-3)
-        lateral_speed = float(np.clip(-self.KP_LATERAL * offset, -self.MAX_LATERAL_SPEED_MPS, self.MAX_LATERAL_SPEED_MPS))
+        lateral_speed = float(_clip(-self.KP_LATERAL * offset, -self.MAX_LATERAL_SPEED_MPS, self.MAX_LATERAL_SPEED_MPS))
         heading_ref = lane.heading_at(s + self.speed * self.TAU_PURSUIT) + np.arcsin(
-            np.clip(lateral_speed / speed, -0.7, 0.7)
+            _clip(lateral_speed / speed, -0.7, 0.7)
         )
         heading_rate = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
         # kinematic bicycle: heading rate = v sin(beta) / (L/2), tan(delta) = 2 tan(beta)
-        beta = np.arcsin(np.clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
-        return float(np.clip(np.arctan(2.0 * np.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        beta = np.arcsin(_clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
+        return float(_clip(np.arctan(2.0 * np.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
 
     def act(self, action: dict | str | None = None) -> None:
         if self.cut_in is not None and not self.crashed:
@@ -150,6 +150,10 @@ class TypedDriverVehicle(IDMVehicle):
         self.clock_s += dt
         super().step(dt)
 
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    """``np.clip`` for one float, the same value (NaN stays NaN) without numpy's per-call cost."""
+    return lo if x < lo else hi if x > hi else x
 
 def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
     """Gap from ``rear``'s front bumper to ``front``'s rear bumper along the road [m]."""
