@@ -12,6 +12,8 @@ of vehicles (``step``). With 50 vehicles those two loops are most of a simulatio
   of equal fronts and the first of equal rears in ``vehicles + objects`` order). On our
   straight road the lane directions are axis-aligned, so the coordinates are the very same
   floats as highway-env's. Curved lanes and connected-lane searches use highway-env's code.
+* the closest lane of each vehicle after each step (:class:`FastRoadNetwork`) is found for
+  all straight lanes at once, with highway-env's distance and tie rule.
 * ``step`` moves the vehicles as highway-env does, then runs highway-env's own collision
   check only for the pairs a broad phase (distance between centres against half the summed
   diagonals plus the distance covered in the step, with a 1 m margin) cannot rule out, in
@@ -23,9 +25,11 @@ Only our env uses it (highway-env's classes are not patched).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from highway_env.road.lane import StraightLane
-from highway_env.road.road import Road
+from highway_env.road.road import LaneIndex, Road, RoadNetwork
 from highway_env.vehicle.objects import Landmark
 
 BROAD_PHASE_MARGIN_M = 1.0
@@ -44,11 +48,76 @@ def _searchable(cls: type) -> bool:
     return ok
 
 
+class FastRoadNetwork(RoadNetwork):
+    """highway-env's road network with a faster ``get_closest_lane_index`` for axis-aligned straight lanes.
+
+    highway-env calls it for every vehicle after every step (``Vehicle.on_state_update``),
+    and each lane's ``distance_with_heading`` goes through numpy on two-element arrays. Here
+    each lane's start, direction, length and heading are read once, and the same weighted
+    distance (``abs(lateral) + beyond either end + abs(wrapped heading difference)``, summed
+    in highway-env's order) is computed with plain floats; the first smallest wins, as with
+    ``np.argmin`` over highway-env's list. With axis-aligned lanes the lane coordinates are
+    exact (products with 0 and 1), so every value is highway-env's, bit for bit. Networks
+    with other lanes use highway-env's loop. Lanes must be added with ``add_lane``.
+    """
+
+    _lanes: list[tuple] | None = None
+
+    @classmethod
+    def of(cls, network: RoadNetwork) -> FastRoadNetwork:
+        """The same network (the same graph object) with the fast lookup."""
+        fast = cls()
+        fast.graph = network.graph
+        return fast
+
+    def add_lane(self, _from: str, _to: str, lane) -> None:  # noqa: ANN001 - highway-env's signature
+        """Add a lane (highway-env's), and forget the lane table."""
+        super().add_lane(_from, _to, lane)
+        self._lanes = None
+
+    def _lane_table(self) -> list[tuple]:
+        rows = []
+        for _from, to_dict in self.graph.items():
+            for _to, lanes in to_dict.items():
+                for _id, lane in enumerate(lanes):
+                    axis_aligned = all(float(c) in (-1.0, 0.0, 1.0) for c in (*lane.direction, *lane.direction_lateral)) \
+                        if type(lane) is StraightLane else False
+                    if not axis_aligned:
+                        return []
+                    rows.append(((_from, _to, _id), float(lane.start[0]), float(lane.start[1]), float(lane.direction[0]),
+                                 float(lane.direction[1]), float(lane.direction_lateral[0]),
+                                 float(lane.direction_lateral[1]), float(lane.length), float(lane.heading)))
+        return rows
+
+    def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
+        """The lane closest to a position (and heading), as highway-env finds it."""
+        if self._lanes is None:
+            self._lanes = self._lane_table()
+        if heading is None or not self._lanes:
+            return super().get_closest_lane_index(position, heading)
+        px, py = float(position[0]), float(position[1])
+        best, best_index = math.inf, None
+        for index, sx, sy, dx, dy, lx, ly, length, lane_heading in self._lanes:
+            d0, d1 = px - sx, py - sy
+            s = d0 * dx + d1 * dy
+            r = d0 * lx + d1 * ly
+            angle = abs(((heading - lane_heading + math.pi) % (2 * math.pi)) - math.pi)
+            dist = abs(r) + max(s - length, 0) + max(0 - s, 0) + 1.0 * angle
+            if dist < best or best_index is None:  # the first smallest, as np.argmin
+                best, best_index = dist, index
+        return best_index
+
+
 class FastRoad(Road):
     """highway-env's road with vectorised neighbour search and a collision broad phase."""
 
     _in_act = False
     _index: tuple[list, np.ndarray, dict[int, int]] | None = None
+
+    def __init__(self, *args, **kwargs) -> None:  # noqa: ANN002, ANN003 - highway-env's signature
+        super().__init__(*args, **kwargs)
+        if type(self.network) is RoadNetwork:
+            self.network = FastRoadNetwork.of(self.network)
 
     def act(self) -> None:
         """Decide every vehicle's action (highway-env's loop). Deciding moves nobody, so the
