@@ -419,9 +419,9 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
-    if args.fresh and ckpt.exists():
-        ckpt.unlink()
-    elif ckpt.exists():
+    if out.exists() and not ckpt.exists() and not args.fresh:
+        raise ConfigError(f"{out} exists and has no checkpoint to resume: pass --fresh to train anew and replace it")
+    if ckpt.exists() and not args.fresh:
         print(f"resuming from {ckpt}", file=sys.stderr)
     arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
     settings = TrainSettings(minutes=args.minutes, batch=args.batch, seed=args.seed, max_steps=args.max_steps)
@@ -439,7 +439,7 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
             bar.refresh()
 
         try:
-            result = train(out, arch, settings, resume=True, progress=progress)
+            result = train(out, arch, settings, resume=not args.fresh, progress=progress)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
     print(f"trained {result['steps']} steps ({result['frames_rendered']} frames rendered, "
@@ -447,7 +447,9 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
           f"last loss {result['last_losses'].get('loss', float('nan')):.3f}")
     print(f"wrote {result['weights']} (checkpoint {result['checkpoint']})")
     if args.eval_frames:
-        args.weights, args.frames, args.json, args.width_eval = str(out), args.eval_frames, False, None
+        from dt_highway.perception.learned.evaluate import EVAL_SEED
+
+        args.weights, args.frames, args.json, args.seed = str(out), args.eval_frames, False, EVAL_SEED
         return cmd_detector_eval(args)
     return 0
 
@@ -458,7 +460,7 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
     from dt_highway.perception.learned.evaluate import evaluate
 
     try:
-        det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score)
+        det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score, scale=args.scale)
     except (FileNotFoundError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     size = getattr(args, "size", None)
@@ -469,6 +471,7 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
     result["weights"] = args.weights or "shipped"
+    result["scale"] = args.scale
     if getattr(args, "out_json", None):
         Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out_json).write_text(dump_json(result) + "\n")
@@ -482,6 +485,16 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
               f"recall@IoU0.7 {result['recall_iou07']:.3f} (at score >= {result['operating_score']}: "
               f"{result['recall_iou07_at_operating_score']:.3f}, precision {result['precision_iou07_at_operating_score']:.3f})")
     return 0
+
+
+def _score(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--min-score must be a number in (0, 1] (got '{text}')") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"--min-score must be in (0, 1] (got {text})")
+    return value
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -631,9 +644,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=_positive(int, "--batch"), default=32, help="images per step (default 32)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of replay choices (default 0)")
     p.add_argument("--max-steps", type=_positive(int, "--max-steps"), help="stop after this many steps")
-    p.add_argument("--fresh", action="store_true", help="start over instead of resuming from <out>.ckpt")
+    p.add_argument("--fresh", action="store_true",
+                   help="start over instead of resuming from <out>.ckpt (replaces it and <out> when training ends)")
     p.add_argument("--eval-frames", type=_positive(int, "--eval-frames"), help="evaluate on this many held-out frames after")
-    p.add_argument("--min-score", type=float, default=0.3, help=argparse.SUPPRESS)
+    p.add_argument("--min-score", type=_score, default=0.3, help=argparse.SUPPRESS)
+    p.add_argument("--scale", default="resize", help=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_detector_train)
     p = dsub.add_parser("eval", help="COCO AP, AP50, AP75 and recall at IoU 0.7 on held-out seeded frames")
@@ -641,7 +656,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive(int, "--frames"), default=500, help="held-out frames (default 500)")
     p.add_argument("--seed", type=_seed, default=0, help="first frame seed (default 0)")
     p.add_argument("--size", type=_size, help="frame size WxH (default: the network's, 320x180)")
-    p.add_argument("--min-score", type=float, default=0.3, help="operating score for recall/precision (default 0.3)")
+    p.add_argument("--min-score", type=_score, default=0.3, help="operating score for recall/precision, in (0, 1] (default 0.3)")
+    p.add_argument("--scale", choices=("resize", "native"), default="resize",
+                   help="frames of another size: resized to the network's (default) or read as they are")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", dest="out_json", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -327,8 +327,10 @@ class DetectorConfig(_Section):
         "simulated",
         description="'simulated': ground truth plus realistic errors; 'learned': the trained network on the RGB image",
     )
-    weights: str | None = Field(None, description="learned: weights file (None: the shipped weights)")
-    min_score: float = Field(0.3, ge=0, le=1, description="learned: least score of a detection [-]")
+    weights: str | None = Field(
+        None, description="learned: weights file, relative to the working directory (None: the shipped weights)"
+    )
+    min_score: float = Field(0.3, gt=0, le=1, description="learned: least score of a detection, in (0, 1] [-]")
     scale: Literal["resize", "native"] = Field(
         "resize", description="learned: resize frames to the network's input size, or read them at their own size"
     )

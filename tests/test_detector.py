@@ -194,3 +194,52 @@ def test_matching_reports_both_detectors(tmp_path, capsys) -> None:
     assert set(both) == {"simulated", "learned"} and set(both["learned"]) == {"baseline", "fusion", "joint", "tracked"}
     for kind in both:
         assert json.loads((out / kind / "summary.json").read_text())["settings"]["detector"]["kind"] == kind
+
+
+class _Oracle:
+    """A 'detector' that returns given boxes: checks the evaluation itself."""
+
+    def __init__(self, with_ignored_fp: bool = False) -> None:
+        self.arch = Architecture()
+        self.min_score = 0.3
+        self.with_ignored_fp = with_ignored_fp
+
+    def detect_batch(self, rgbs, depths=None, min_score=None):
+        from dt_highway.perception.detect import Detections
+
+        out = []
+        for rgb in rgbs:
+            seed = next(s for s in range(1000) if np.array_equal(make_frame(s, SceneSettings(vary_camera=False)).rgb, rgb))
+            f = make_frame(seed, SceneSettings(vary_camera=False))
+            boxes = f.boxes if self.with_ignored_fp else f.boxes[f.scored]
+            out.append(Detections(boxes, np.full(len(boxes), 0.9), np.zeros(len(boxes), dtype=np.int64)))
+        return out
+
+
+def test_the_evaluation_scores_perfect_boxes_as_perfect_and_ignores_ignored_vehicles() -> None:
+    perfect = evaluate(_Oracle(), frames=6, seed=0, batch=3)
+    assert perfect["AP"] == 1.0 and perfect["AP75"] == 1.0 and perfect["recall_iou07"] == 1.0
+    assert perfect["recall_iou07_at_operating_score"] == 1.0 and perfect["precision_iou07_at_operating_score"] == 1.0
+    # boxes on the ignored (small, hidden) vehicles too: neither hits nor false alarms
+    both = evaluate(_Oracle(with_ignored_fp=True), frames=6, seed=0, batch=3)
+    assert both["ignored_vehicles"] > 0
+    assert both["AP"] == 1.0 and both["precision_iou07_at_operating_score"] == 1.0
+
+
+def test_training_and_config_mistakes_are_one_line(tmp_path, capsys) -> None:
+    (tmp_path / "bad.pt").write_text("x")
+    cases = [
+        (["matching", "--out", str(tmp_path / "m"), "--frames", "1", "--quiet", "--set", "detector.kind=learned",
+          "--set", f"detector.weights={tmp_path / 'bad.pt'}"], "not a detector weights file"),
+        (["detector", "train", "--out", str(tmp_path / "t.pt"), "--batch", "1", "--quiet"], "must be even"),
+        (["detector", "train", "--out", str(tmp_path / "t.pt"), "--width", "8", "--quiet"], "32 to 4096"),
+        (["detector", "train", "--out", str(tmp_path / "bad.pt"), "--quiet"], "pass --fresh"),
+    ]
+    for argv, words in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and words in err, (argv, err)
+    assert (tmp_path / "bad.pt").read_text() == "x"  # not replaced without --fresh
+    with pytest.raises(SystemExit):  # argparse's own one-line error
+        main(["detector", "eval", "--min-score", "0", "--quiet"])
+    assert "--min-score must be in (0, 1]" in capsys.readouterr().err

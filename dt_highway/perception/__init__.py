@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dt_highway.config import DetectorConfig, FusionConfig
+from dt_highway.config import ConfigError, DetectorConfig, FusionConfig
 
 from dt_highway.perception.depth import box_distances, sample_regions
 from dt_highway.perception.detect import Detections, Detector, SimulatedDetector, SimulatedDetectorSettings, iou
@@ -24,14 +24,17 @@ def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -
     :param rng: its random generator (the simulated detector's errors)
     :return: a :class:`SimulatedDetector` or a
         :class:`~dt_highway.perception.learned.detector.LearnedDetector`
-    :raises ValueError: if the learned detector's weights file cannot be read
+    :raises ConfigError: if the learned detector's weights file is missing or cannot be read
     """
     if cfg.kind == "learned":
         from dt_highway.perception.learned.weights import SHIPPED
 
         path = Path(cfg.weights) if cfg.weights else SHIPPED
         stamp = path.stat().st_mtime_ns if path.is_file() else 0
-        return _learned(str(path.resolve()), stamp, cfg.min_score, cfg.scale)
+        try:
+            return _learned(str(path.resolve()), stamp, cfg.min_score, cfg.scale)
+        except (FileNotFoundError, ValueError) as exc:
+            raise ConfigError(f"detector.weights: {exc}") from None
     fields = cfg.model_dump(exclude={"kind", "weights", "min_score", "scale"})
     return SimulatedDetector(SimulatedDetectorSettings(**fields), rng)
 

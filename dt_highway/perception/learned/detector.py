@@ -29,7 +29,7 @@ class LearnedDetector:
     ``frame.depth_m`` for a depth model) only.
 
     :param weights: a weights file (``None``: the shipped weights)
-    :param min_score: least score of a reported detection [-]
+    :param min_score: least score of a reported detection, in (0, 1] [-]
     :param threads: torch threads (``None``: leave torch's setting)
     :param scale: ``"resize"`` or ``"native"`` (see above)
     :raises FileNotFoundError: if the weights file does not exist
@@ -38,8 +38,8 @@ class LearnedDetector:
 
     def __init__(self, weights: str | Path | None = None, min_score: float = 0.3, threads: int | None = None,
                  scale: str = "resize") -> None:
-        if not 0.0 <= min_score <= 1.0:
-            raise ValueError(f"min_score must be in [0, 1] (got {min_score})")
+        if not 0.0 < min_score <= 1.0:
+            raise ValueError(f"min_score must be in (0, 1] (got {min_score})")
         if scale not in SCALES:
             raise ValueError(f"scale must be one of {', '.join(SCALES)} (got '{scale}')")
         self.scale = scale

@@ -7,7 +7,9 @@ meet). Scored vehicles are those of :func:`~dt_highway.perception.learned.data.s
 (KITTI moderate); the other labelled vehicles are COCO crowd regions: a detection on one is
 neither a hit nor a false alarm. AP, AP50 and AP75 come from pycocotools' ``COCOeval``
 (101-point interpolation, IoU 0.50:0.05:0.95, up to 100 detections per image); recall at IoU
-0.7 is read from the same evaluation, and also given at the detector's operating score.
+0.7 is read from the same evaluation. At the detector's operating score, detections are
+matched greedily (highest score first) at IoU 0.7: recall = scored vehicles found / scored
+vehicles, precision = hits / (hits + false alarms), detections on ignored vehicles left out.
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ def evaluate(
         raise ValueError(f"held-out seeds must lie in 0..{TRAIN_SEED0 - 1} (got {seed}..{seed + frames - 1})")
     settings = SceneSettings(width_px or detector.arch.width_px, height_px or detector.arch.height_px, vary_camera=False)
     images, annotations, detections = [], [], []
-    operating = {"hits": 0, "scored": 0, "detections": 0, "false": 0}
+    operating = {"hits": 0, "scored": 0, "false": 0, "ignored": 0}
     t_detect = 0.0
     for start in range(seed, seed + frames, batch):
         labelled = [make_frame(s, settings) for s in range(start, min(start + batch, seed + frames))]
@@ -79,25 +81,25 @@ def evaluate(
                                     "area": area, "iscrowd": int(not keep)})
             for b, sc in zip(det.boxes, det.scores):
                 detections.append({"image_id": s, "category_id": 1, "bbox": _coco_box(b), "score": float(sc)})
-            # at the operating score: greedy matching at IoU 0.7
+            # at the operating score: greedy matching at IoU 0.7, highest score first; a
+            # detection on an ignored vehicle is neither a hit nor a false alarm
             op = det.scores >= detector.min_score
-            gt = f.boxes[f.scored]
-            operating["scored"] += len(gt)
-            operating["detections"] += int(op.sum())
-            if len(gt) and op.any():
+            operating["scored"] += int(f.scored.sum())
+            if op.any() and len(f.boxes) == 0:
+                operating["false"] += int(op.sum())
+            elif op.any():
                 m = iou(det.boxes[op], f.boxes)
-                order = np.argsort(-det.scores[op])
                 taken = np.zeros(len(f.boxes), dtype=bool)
-                for d in order:
+                for d in np.argsort(-det.scores[op], kind="stable"):
                     cand = np.where(~taken, m[d], -1.0)
                     j = int(np.argmax(cand))
                     if cand[j] >= 0.7:
                         taken[j] = True
-                        operating["hits"] += int(f.scored[j])
-                    elif m[d].max() < 0.3 or f.scored[np.argmax(m[d])]:
+                        operating["hits" if f.scored[j] else "ignored"] += 1
+                    elif m[d].max() < 0.3 or f.scored[int(np.argmax(m[d]))]:
                         operating["false"] += 1
-            elif op.any():
-                operating["false"] += int(op.sum())
+                    else:
+                        operating["ignored"] += 1
         if progress is not None:
             progress(len(images))
     gt = COCO()
@@ -128,7 +130,7 @@ def evaluate(
         "operating_score": detector.min_score,
         "recall_iou07_at_operating_score": round(operating["hits"] / max(operating["scored"], 1), 4),
         "precision_iou07_at_operating_score": round(
-            1.0 - operating["false"] / max(operating["detections"], 1), 4),
+            operating["hits"] / max(operating["hits"] + operating["false"], 1), 4),
         "frames": len(images),
         "seeds": [seed, seed + frames - 1],
         "image_px": [settings.width_px, settings.height_px],

@@ -259,7 +259,7 @@ def peaks(heat_logits: torch.Tensor, dist: torch.Tensor, max_detections: int = 1
     boxes = decode_boxes(dist).view(b, 4, -1)
     out = []
     for i in range(b):
-        ok = scores[i] >= min_score
+        ok = (scores[i] >= min_score) & (scores[i] > 0)  # cells suppressed by the pooling score 0
         sel = idx[i][ok]
         out.append((boxes[i][:, sel].T.numpy().astype(float), scores[i][ok].numpy().astype(float)))
     return out

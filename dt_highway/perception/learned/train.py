@@ -8,7 +8,9 @@ other colours: the worker randomises colours and lighting, :func:`randomise_colo
 steps AdamW with a cosine learning rate over the time budget.
 
 A checkpoint (model, optimiser, counters, generator states) is written atomically every
-``checkpoint_every_s`` to ``<out>.ckpt``; running the same command again resumes from it.
+``checkpoint_every_s`` to ``<out>.ckpt`` and when training is interrupted; running the same
+command again resumes from it (the replay pool, 350 MB, is not saved: it refills from the
+next frames, so the first steps after a resume train on fresh frames only).
 The finished weights (:func:`save_weights`) hold plain tensors and values only, so that
 ``torch.load(..., weights_only=True)`` reads them.
 """
@@ -190,12 +192,21 @@ def train(
     """
     out = Path(out)
     ckpt_path = out.with_name(out.name + ".ckpt")
+    if settings.batch < 2 or settings.batch % 2 or settings.batch // 2 > settings.replay:
+        raise ValueError(f"the batch (--batch) must be even, from 2 to {2 * settings.replay} (got {settings.batch})")
+    if not (32 <= arch.width_px <= 4096 and 32 <= arch.height_px <= 4096):
+        raise ValueError(f"the network's input (--width, --height) must be 32 to 4096 px per side "
+                         f"(got {arch.width_px}x{arch.height_px})")
+    if settings.minutes <= 0:
+        raise ValueError(f"minutes must be > 0 (got {settings.minutes})")
     torch.set_num_threads(settings.threads)
     state = None
     if resume and ckpt_path.exists():
         try:
             state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
             saved = Architecture.from_dict(state["arch"])
+            counters = (int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"]), int(state["rendered"]))
+            model_state, opt_state, gen_state = state["model"], state["optimizer"], state["generator"]
         except Exception as exc:  # a torn or foreign checkpoint: say so, do not guess
             raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc} "
                              "(delete it or pass --fresh)") from None
@@ -210,11 +221,13 @@ def train(
     gen = torch.Generator().manual_seed(settings.seed)
     pool: dict[str, torch.Tensor] = {}
     if state is not None:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        step, elapsed, next_seed = int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"])
-        rendered = int(state["rendered"])
-        gen.set_state(state["generator"])
+        try:
+            model.load_state_dict(model_state)
+            opt.load_state_dict(opt_state)
+            gen.set_state(gen_state)
+        except Exception as exc:
+            raise ValueError(f"cannot resume from {ckpt_path}: {str(exc).splitlines()[0]} (pass --fresh)") from None
+        step, elapsed, next_seed, rendered = counters
     half = settings.batch // 2
     loader = DataLoader(_Frames(arch, next_seed), batch_size=half, num_workers=1, persistent_workers=False,
                         prefetch_factor=4)

@@ -77,6 +77,8 @@ def load_weights(path: str | Path | None = None) -> tuple[PointDetector, dict]:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: its architecture record is unusable ({exc})") from None
     expected, given = model.state_dict(), obj.get("state_dict", {})
+    if not isinstance(given, dict) or not all(isinstance(v, torch.Tensor) for v in given.values()):
+        raise ValueError(f"{path}: its state_dict is not a dict of tensors")
     missing = [k for k in expected if k not in given]
     wrong = [k for k in expected if k in given and tuple(given[k].shape) != tuple(expected[k].shape)]
     if missing or wrong:
