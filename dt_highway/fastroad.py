@@ -25,6 +25,7 @@ Only our env uses it (highway-env's classes are not patched).
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -129,45 +130,77 @@ class FastRoad(Road):
         finally:
             self._in_act, self._index = False, None
 
-    def _searchables(self) -> tuple[list, np.ndarray, dict[int, int]]:
-        """The vehicles and objects searches consider, their positions ``(N, 2)`` [m] and index by ``id``."""
+    def _searchables(self) -> tuple[list, np.ndarray, dict[int, int], dict]:
+        """The vehicles and objects searches consider, their positions ``(N, 2)`` [m], index by
+        ``id``, and the per-lane sorted indexes (filled lazily by :meth:`_lane_order`)."""
         if self._index is not None:
             return self._index
         items = [v for v in self.vehicles + self.objects if _searchable(type(v))]
         pos = np.array([v.position for v in items], dtype=float).reshape(-1, 2)
-        index = (items, pos, {id(v): i for i, v in enumerate(items)})
+        index = (items, pos, {id(v): i for i, v in enumerate(items)}, {})
         if self._in_act:
             self._index = index
         return index
 
+    @staticmethod
+    def _lane_order(lane: StraightLane, pos: np.ndarray) -> tuple[list[float], list[int]]:
+        """The items on a lane (highway-env's ``on_lane`` with a 1 m margin), sorted by
+        longitudinal position, ties by their order in ``vehicles + objects``."""
+        d = pos - lane.start
+        long = d[:, 0] * lane.direction[0] + d[:, 1] * lane.direction[1]
+        lat = d[:, 0] * lane.direction_lateral[0] + d[:, 1] * lane.direction_lateral[1]
+        on = (np.abs(lat) <= lane.width / 2 + 1) & (-lane.VEHICLE_LENGTH <= long) & (long < lane.length + lane.VEHICLE_LENGTH)
+        idx = np.flatnonzero(on)
+        order = idx[np.lexsort((idx, long[idx]))]
+        return long[order].tolist(), order.tolist()
+
     def neighbour_vehicles(self, vehicle, lane_index=None):  # noqa: ANN001, ANN201 - highway-env's signature
-        """The preceding and following vehicles of ``vehicle`` on a lane, as highway-env finds them."""
+        """The preceding and following vehicles of ``vehicle`` on a lane, as highway-env finds them.
+
+        A per-lane index sorted by longitudinal position answers it by bisection: the
+        leader is the nearest item at or ahead of the vehicle (the last of equals, as
+        highway-env's ``<=`` keeps it), the follower the nearest behind (the first of equals).
+        """
         lane_index = lane_index or vehicle.lane_index
         if not lane_index:
             return None, None
         lane = self.network.get_lane(lane_index)
         if self.neighbour_vehicles_connected_lanes or type(lane) is not StraightLane:
             return super().neighbour_vehicles(vehicle, lane_index)
-        others, pos, index = self._searchables()
-        if not others:
+        items, pos, index, lanes = self._searchables()
+        if not items:
             return None, None
+        table = lanes.get(lane_index)
+        if table is None:
+            table = lanes[lane_index] = self._lane_order(lane, pos)
+        longs, order = table
         s = lane.local_coordinates(vehicle.position)[0]
-        d = pos - lane.start
-        long = d[:, 0] * lane.direction[0] + d[:, 1] * lane.direction[1]
-        lat = d[:, 0] * lane.direction_lateral[0] + d[:, 1] * lane.direction_lateral[1]
-        on = (np.abs(lat) <= lane.width / 2 + 1) & (-lane.VEHICLE_LENGTH <= long) & (long < lane.length + lane.VEHICLE_LENGTH)
-        me = index.get(id(vehicle))
-        if me is not None:
-            on[me] = False  # not its own neighbour
-        front = np.flatnonzero(on & (long >= s))
-        rear = np.flatnonzero(on & (long < s))
+        me = index.get(id(vehicle), -1)
+        n = len(longs)
+        k = bisect.bisect_left(longs, s)
         v_front = v_rear = None
-        if len(front):
-            best = long[front].min()
-            v_front = others[int(front[long[front] == best][-1])]  # the last of equal fronts
-        if len(rear):
-            best = long[rear].max()
-            v_rear = others[int(rear[long[rear] == best][0])]  # the first of equal rears
+        i = k
+        while i < n and order[i] == me:
+            i += 1
+        if i < n:
+            best, last = longs[i], order[i]
+            i += 1
+            while i < n and longs[i] == best:
+                if order[i] != me:
+                    last = order[i]  # sorted by index within equals: the last is the largest
+                i += 1
+            v_front = items[last]
+        i = k - 1
+        while i >= 0 and order[i] == me:
+            i -= 1
+        if i >= 0:
+            best, first = longs[i], order[i]
+            i -= 1
+            while i >= 0 and longs[i] == best:
+                if order[i] != me:
+                    first = order[i]
+                i -= 1
+            v_rear = items[first]
         return v_front, v_rear
 
     def step(self, dt: float) -> None:

@@ -28,11 +28,17 @@ def _roads(seed):
 def test_neighbours_are_highway_envs_ties_included():
     for seed in range(5):
         fast, stock, vehicles = _roads(seed)
-        for v in vehicles:
-            for lane in range(3):
-                idx = ("0", "1", lane)
-                assert fast.neighbour_vehicles(v, idx) == stock.neighbour_vehicles(v, idx)
-            assert fast.neighbour_vehicles(v) == stock.neighbour_vehicles(v)
+        for in_act in (False, True):  # built per search, and the per-lane index shared by an act phase
+            fast._in_act, fast._index = in_act, None
+            for v in vehicles:
+                for lane in range(3):
+                    idx = ("0", "1", lane)
+                    assert fast.neighbour_vehicles(v, idx) == stock.neighbour_vehicles(v, idx)
+                assert fast.neighbour_vehicles(v) == stock.neighbour_vehicles(v)
+            # a vehicle that is not on the road (a probe) finds the same neighbours too
+            probe = Vehicle(fast, [130.0, 4.0], 0.0, 20.0)
+            assert fast.neighbour_vehicles(probe, ("0", "1", 1)) == stock.neighbour_vehicles(probe, ("0", "1", 1))
+        fast._in_act, fast._index = False, None
 
 
 def _run(fast: bool, extra=(), seconds=10.0):
