@@ -15,10 +15,11 @@ of vehicles (``step``). With 50 vehicles those two loops are most of a simulatio
 * the closest lane of each vehicle after each step (:class:`FastRoadNetwork`) is found for
   all straight lanes at once, with highway-env's distance and tie rule.
 * ``step`` moves the vehicles as highway-env does, then runs highway-env's own collision
-  check only for the pairs a broad phase (distance between centres against half the summed
-  diagonals plus the distance covered in the step, with a 1 m margin) cannot rule out, in
-  highway-env's pair order. A pair it skips is one whose check would return "no contact"
-  with no side effect.
+  check only for the pairs a broad phase cannot rule out, in highway-env's pair order. The
+  broad phase is highway-env's own early exit (distance between centres against the half
+  diagonals plus the caller's travel in the step), computed for all pairs at once with a
+  1e-6 m margin: a pair it skips is one whose check would return "no contact" with no side
+  effect.
 
 Only our env uses it (highway-env's classes are not patched).
 """
@@ -33,8 +34,9 @@ from highway_env.road.lane import StraightLane
 from highway_env.road.road import LaneIndex, Road, RoadNetwork
 from highway_env.vehicle.objects import Landmark
 
-BROAD_PHASE_MARGIN_M = 1.0
-"""Extra distance the collision broad phase keeps pairs for [m] (floating-point safety)"""
+BROAD_PHASE_MARGIN_M = 1e-6
+"""Extra distance the collision broad phase keeps pairs for [m]: our distances may differ from
+``np.linalg.norm``'s in the last bits, so pairs within this of the threshold get the full check"""
 
 
 _SEARCHABLE: dict[type, bool] = {}
@@ -203,6 +205,20 @@ class FastRoad(Road):
             v_rear = items[first]
         return v_front, v_rear
 
+    @staticmethod
+    def close_pairs(items: list, dt: float) -> np.ndarray:
+        """Which pairs may touch in a step: ``(N, N)`` bool, row = the vehicle that checks.
+
+        highway-env's own early exit (``RoadObject._is_colliding``), for all pairs at once:
+        no contact when the centres are farther apart than the half diagonals plus the
+        checking vehicle's travel in the step [m], plus :data:`BROAD_PHASE_MARGIN_M`.
+        """
+        pos = np.array([o.position for o in items], dtype=float).reshape(-1, 2)
+        half_diag = np.array([o.diagonal / 2 for o in items])
+        travel = np.array([float(getattr(o, "speed", 0.0)) * dt for o in items])
+        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+        return dist <= half_diag[:, None] + half_diag[None, :] + travel[:, None] + BROAD_PHASE_MARGIN_M
+
     def step(self, dt: float) -> None:
         """Move every vehicle, then handle the collisions of the pairs that may touch."""
         for vehicle in self.vehicles:
@@ -211,10 +227,7 @@ class FastRoad(Road):
         n_veh = len(self.vehicles)
         if len(items) < 2 or n_veh == 0:
             return
-        pos = np.array([o.position for o in items], dtype=float)
-        reach = np.array([o.diagonal / 2 + abs(float(getattr(o, "speed", 0.0))) * dt for o in items])
-        dist = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-        close = dist <= reach[:, None] + reach[None, :] + BROAD_PHASE_MARGIN_M
+        close = self.close_pairs(items, dt)
         # highway-env's order: each vehicle with the vehicles after it, then with the objects
         for i in range(n_veh):
             vehicle = items[i]

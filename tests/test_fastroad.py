@@ -84,3 +84,21 @@ def test_plain_idm_traffic_follows_stock_highway_v0_exactly():
         b = np.array([v.position for v in ours.road.vehicles])
         assert a.shape == b.shape and np.abs(a - b).max() <= 1e-6
     assert ours.twin_view is not None  # the twin ran all along
+
+
+def test_the_broad_phase_skips_only_pairs_highway_env_rules_out():
+    rng = np.random.default_rng(0)
+    net = RoadNetwork.straight_road_network(3, length=1000.0)
+    road = FastRoad(network=net)
+    kept = 0
+    for _ in range(20):
+        vs = [Vehicle(road, [float(rng.uniform(0, 60)), float(rng.uniform(-2, 10))], float(rng.normal(0, 0.2)),
+                      float(rng.uniform(-5, 40))) for _ in range(30)]
+        close = FastRoad.close_pairs(vs, 1 / 15)
+        for i, a in enumerate(vs):
+            for j, b in enumerate(vs):
+                if i != j and not close[i, j]:
+                    inter, will, transition = a._is_colliding(b, 1 / 15)
+                    assert not inter and not will and not transition.any()
+        kept += int(close.sum()) - len(vs)
+    assert kept > 0  # some pairs do get highway-env's full check

@@ -27,6 +27,8 @@ class FixStore:
         self.window_s = window_s
         self._times: dict[int, list[float]] = {}
         self._fixes: dict[int, list[GnssFix]] = {}
+        self._rows: dict[int, list[tuple[float, float, float, float, float]]] = {}
+        self._arrays: dict[int, np.ndarray] = {}  # history() per vehicle until its next change
 
     def add(self, fixes: Iterable[GnssFix]) -> set[int]:
         """Insert fixes; :return: the ids of the vehicles that got new data."""
@@ -34,11 +36,14 @@ class FixStore:
         for f in fixes:
             times = self._times.setdefault(f.vehicle_id, [])
             items = self._fixes.setdefault(f.vehicle_id, [])
+            rows = self._rows.setdefault(f.vehicle_id, [])
             i = bisect.bisect_right(times, f.t_s)
             times.insert(i, f.t_s)
             items.insert(i, f)
+            rows.insert(i, (f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad))
             touched.add(f.vehicle_id)
         for vid in touched:
+            self._arrays.pop(vid, None)
             self._prune(vid)
         return touched
 
@@ -48,17 +53,22 @@ class FixStore:
         if cut:
             del times[:cut]
             del self._fixes[vid][:cut]
+            del self._rows[vid][:cut]
 
     def drop_older_than(self, t_s: float) -> None:
         """Forget vehicles whose newest fix is older than ``t_s`` [s] (they left)."""
         for vid in [v for v, t in self._times.items() if t[-1] < t_s]:
             del self._times[vid]
             del self._fixes[vid]
+            del self._rows[vid]
+            self._arrays.pop(vid, None)
 
     def clear(self) -> None:
         """Forget every history."""
         self._times.clear()
         self._fixes.clear()
+        self._rows.clear()
+        self._arrays.clear()
 
     def __contains__(self, vehicle_id: int) -> bool:
         return vehicle_id in self._times
@@ -80,8 +90,16 @@ class FixStore:
         return items[-1] if items else None
 
     def history(self, vehicle_id: int) -> np.ndarray:
-        """The history as an array of rows ``(t_s, x_m, y_m, speed_mps, heading_rad)``, oldest first."""
-        items = self._fixes.get(vehicle_id, [])
-        if not items:
-            return np.empty((0, 5))
-        return np.array([(f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad) for f in items], dtype=float)
+        """The history as an array of rows ``(t_s, x_m, y_m, speed_mps, heading_rad)``, oldest first.
+
+        :return: a read-only array (kept until the vehicle's next fix: copy it to change it)
+        """
+        arr = self._arrays.get(vehicle_id)
+        if arr is None:
+            rows = self._rows.get(vehicle_id)
+            if not rows:
+                return np.empty((0, 5))
+            arr = np.array(rows, dtype=float)
+            arr.setflags(write=False)
+            self._arrays[vehicle_id] = arr
+        return arr

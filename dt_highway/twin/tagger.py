@@ -105,16 +105,23 @@ def boundary_crossings(
     w = road.lane_width_m
     lane = int(road.lane_of(y_smooth[0]))
     out: list[tuple[float, int, int]] = []
-    for i in range(1, len(t_s)):
-        y = y_smooth[i]
+    i = 1
+    while i < len(t_s):
+        # the next sample beyond the current lane's boundaries (+ hysteresis); found for all
+        # samples at once, the same comparisons as a sample-by-sample scan
         upper = road.first_lane_y_m + (lane + 0.5) * w
         lower = road.first_lane_y_m + (lane - 0.5) * w
-        if lane < road.n_lanes - 1 and y > upper + hysteresis_m:
+        rest = y_smooth[i:]
+        up = rest > upper + hysteresis_m if lane < road.n_lanes - 1 else np.zeros(len(rest), dtype=bool)
+        down = rest < lower - hysteresis_m if lane > 0 else np.zeros(len(rest), dtype=bool)
+        hit = np.flatnonzero(up | down)
+        if len(hit) == 0:
+            break
+        i += int(hit[0])
+        if up[hit[0]]:
             new, boundary = lane + 1, upper
-        elif lane > 0 and y < lower - hysteresis_m:
-            new, boundary = lane - 1, lower
         else:
-            continue
+            new, boundary = lane - 1, lower
         # last sample still on the old side of the boundary, then interpolate the crossing
         j = i
         while j > 0 and (y_smooth[j - 1] - boundary) * (new - lane) > 0:
@@ -127,6 +134,7 @@ def boundary_crossings(
             t_c = float(t_s[j - 1] + frac * (t_s[j] - t_s[j - 1]))
         out.append((t_c, lane, new))
         lane = new
+        i += 1
     return out
 
 
