@@ -146,3 +146,11 @@ def test_bench_fusion_prints_numbers(capsys):
     result = json.loads(capsys.readouterr().out)
     assert set(result["methods"]) == {"baseline", "fusion", "joint", "tracked"}
     assert all(r["median_ms"] > 0 for r in result["methods"].values())
+
+
+def test_bench_sim_prints_steps_ratios_and_the_deviation(capsys):
+    assert main(["bench", "sim", "--steps", "1", "--deviation-s", "2", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert set(r["steps_per_s"]) == {"stock_highway_v0", "ours_plain_idm", "ours_driver_types", "ours_adas_pipeline"}
+    assert all(v > 0 for v in r["steps_per_s"].values())
+    assert r["same_vehicles"] and r["max_deviation_m"] <= 1e-6
