@@ -177,6 +177,8 @@ class FastRoad(Road):
             table = lanes[lane_index] = self._lane_order(lane, pos)
         longs, order = table
         s = lane.local_coordinates(vehicle.position)[0]
+        if s != s:  # NaN: highway-env's comparisons all fail, so it finds nobody
+            return None, None
         me = index.get(id(vehicle), -1)
         n = len(longs)
         k = bisect.bisect_left(longs, s)
