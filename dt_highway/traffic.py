@@ -155,6 +155,7 @@ def _clip(x: float, lo: float, hi: float) -> float:
     """``np.clip`` for one float, the same value (NaN stays NaN) without numpy's per-call cost."""
     return lo if x < lo else hi if x > hi else x
 
+
 def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
     """Gap from ``rear``'s front bumper to ``front``'s rear bumper along the road [m]."""
     return float(front.position[0] - rear.position[0]) - (front.LENGTH + rear.LENGTH) / 2.0
