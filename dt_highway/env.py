@@ -37,7 +37,9 @@ from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
 from dt_highway.drivers.control import DriverAction
+from dt_highway.fastobs import FastKinematicObservation
 from dt_highway.fastroad import FastRoad
+from dt_highway.fastvehicle import FastIDMVehicle, velocity
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.safety import SafetyMonitor
 from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
@@ -56,7 +58,7 @@ from dt_highway.twin.uplink import Uplink, VehicleState
 ENV_ID = "dt-highway-v0"
 
 
-class TwinTaggedKinematics(KinematicObservation):
+class TwinTaggedKinematics(FastKinematicObservation):
     """highway-env's Kinematics observation plus two columns from the delivered twin view.
 
     ``twin_known`` is 1 when an observed vehicle was associated with a vehicle of the twin's
@@ -215,6 +217,8 @@ class DTHighwayEnv(HighwayEnv):
         flat.update(cfg.highway.model_dump())
         flat["observation"] = dict(cfg.highway.observation)
         flat["action"] = dict(cfg.highway.action)
+        if cfg.traffic.fast_road:  # highway-env's IDM/MOBIL with float arithmetic (same draws, same models)
+            flat["other_vehicles_type"] = "dt_highway.fastvehicle.FastIDMVehicle"
         return flat
 
     def configure(self, config: dict | None) -> None:
@@ -241,6 +245,9 @@ class DTHighwayEnv(HighwayEnv):
             if obs_cfg.pop("type", "Kinematics") != "Kinematics":
                 raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
             self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
+        elif obs_cfg.get("type") == "Kinematics" and self.dt_config.traffic.fast_road:
+            obs_cfg.pop("type")
+            self.observation_type = FastKinematicObservation(self, **obs_cfg)
         else:
             self.observation_type = observation_factory(self, self.config["observation"])
         act_cfg = dict(self.config["action"])
@@ -460,7 +467,8 @@ class DTHighwayEnv(HighwayEnv):
 
     def _autopilot_from(self, ego: Vehicle) -> IDMVehicle:
         """An IDM vehicle (no lane changes) in the ego's place and state."""
-        pilot = IDMVehicle(
+        pilot_class = FastIDMVehicle if self.dt_config.traffic.fast_road else IDMVehicle
+        pilot = pilot_class(
             self.road, ego.position, ego.heading, ego.speed, target_lane_index=ego.lane_index,
             target_speed=self.dt_config.ego.autopilot_speed_mps, enable_lane_change=False,
         )
@@ -505,8 +513,7 @@ class DTHighwayEnv(HighwayEnv):
         if self.twin is not None:
             now = self.twin_now_s
             states = [
-                VehicleState(vehicle_id(v), float(v.position[0]), float(v.position[1]), float(v.velocity[0]),
-                             float(v.velocity[1]), float(v.speed), float(v.heading))
+                VehicleState(vehicle_id(v), *v.position.tolist(), *velocity(v), float(v.speed), float(v.heading))
                 for v in self.road.vehicles
                 if getattr(v, "dt_connected", False)
             ]

@@ -34,6 +34,8 @@ from highway_env.road.lane import StraightLane
 from highway_env.road.road import LaneIndex, Road, RoadNetwork
 from highway_env.vehicle.objects import Landmark
 
+from dt_highway.fastvehicle import longitudinal, surely_apart
+
 BROAD_PHASE_MARGIN_M = 1e-6
 """Extra distance the collision broad phase keeps pairs for [m]: our distances may differ from
 ``np.linalg.norm``'s in the last bits, so pairs within this of the threshold get the full check"""
@@ -96,16 +98,21 @@ class FastRoadNetwork(RoadNetwork):
         """The lane closest to a position (and heading), as highway-env finds it."""
         if self._lanes is None:
             self._lanes = self._lane_table()
-        if heading is None or not self._lanes:
+        if not self._lanes:
             return super().get_closest_lane_index(position, heading)
-        px, py = float(position[0]), float(position[1])
+        px, py = position.tolist() if type(position) is np.ndarray else (float(position[0]), float(position[1]))
         best, best_index = math.inf, None
+        pi, two_pi = math.pi, 2 * math.pi
         for index, sx, sy, dx, dy, lx, ly, length, lane_heading in self._lanes:
             d0, d1 = px - sx, py - sy
             s = d0 * dx + d1 * dy
             r = d0 * lx + d1 * ly
-            angle = abs(((heading - lane_heading + math.pi) % (2 * math.pi)) - math.pi)
-            dist = abs(r) + max(s - length, 0) + max(0 - s, 0) + 1.0 * angle
+            beyond, before = s - length, 0 - s
+            # highway-env's abs(r) + max(s - length, 0) + max(0 - s, 0) [+ 1.0 * angle with a heading]
+            # (``0 if x < 0 else x`` is max(x, 0), NaN and -0.0 included)
+            dist = abs(r) + (0 if beyond < 0 else beyond) + (0 if before < 0 else before)
+            if heading is not None:
+                dist = dist + 1.0 * abs(((heading - lane_heading + pi) % two_pi) - pi)
             if dist < best or best_index is None:  # the first smallest, as np.argmin
                 best, best_index = dist, index
         return best_index
@@ -176,7 +183,7 @@ class FastRoad(Road):
         if table is None:
             table = lanes[lane_index] = self._lane_order(lane, pos)
         longs, order = table
-        s = lane.local_coordinates(vehicle.position)[0]
+        s = longitudinal(lane, *vehicle.position.tolist())  # the arithmetic of the table above
         if s != s:  # NaN: highway-env's comparisons all fail, so it finds nobody
             return None, None
         me = index.get(id(vehicle), -1)
@@ -229,9 +236,11 @@ class FastRoad(Road):
         n_veh = len(self.vehicles)
         if len(items) < 2 or n_veh == 0:
             return
-        close = self.close_pairs(items, dt)
+        close = np.triu(self.close_pairs(items, dt)[:n_veh], 1)
         # highway-env's order: each vehicle with the vehicles after it, then with the objects
-        for i in range(n_veh):
-            vehicle = items[i]
-            for j in np.flatnonzero(close[i, i + 1:]) + i + 1:
-                vehicle.handle_collisions(items[int(j)], dt)
+        # (row-major order of the pairs i < j)
+        rows, cols = close.nonzero()
+        for i, j in zip(rows.tolist(), cols.tolist()):
+            vehicle, other = items[i], items[j]
+            if not surely_apart(vehicle, other, dt, BROAD_PHASE_MARGIN_M):
+                vehicle.handle_collisions(other, dt)

@@ -24,10 +24,10 @@ from typing import Callable
 import numpy as np
 from highway_env import utils
 from highway_env.road.road import Road
-from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.config import DriverParams, TrafficConfig
+from dt_highway.fastvehicle import FastIDMVehicle, clip, local_coordinates, wrap_to_pi
 
 NORMAL = "normal"
 AGGRESSIVE = "aggressive"
@@ -94,7 +94,7 @@ class DriverPopulation:
         return self.drivers[driver_id]
 
 
-class TypedDriverVehicle(IDMVehicle):
+class TypedDriverVehicle(FastIDMVehicle):
     """An IDM/MOBIL vehicle whose gains come from its driver type, plus aggressive cut-ins.
 
     The lateral controller is a lateral-speed-limited lane follower: desired lateral speed
@@ -130,16 +130,17 @@ class TypedDriverVehicle(IDMVehicle):
 
     def steering_control(self, target_lane_index) -> float:
         lane = self.road.network.get_lane(target_lane_index)
-        s, offset = lane.local_coordinates(self.position)
+        x, y = self.position.tolist()
+        s, offset = local_coordinates(lane, x, y)
         speed = max(abs(self.speed), 1e-3)
-        lateral_speed = float(_clip(-self.KP_LATERAL * offset, -self.MAX_LATERAL_SPEED_MPS, self.MAX_LATERAL_SPEED_MPS))
-        heading_ref = lane.heading_at(s + self.speed * self.TAU_PURSUIT) + np.arcsin(
-            _clip(lateral_speed / speed, -0.7, 0.7)
+        lateral_speed = clip(-self.KP_LATERAL * offset, -self.MAX_LATERAL_SPEED_MPS, self.MAX_LATERAL_SPEED_MPS)
+        heading_ref = float(lane.heading_at(s + self.speed * self.TAU_PURSUIT)) + math.asin(
+            clip(lateral_speed / speed, -0.7, 0.7)
         )
-        heading_rate = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
+        heading_rate = self.KP_HEADING * wrap_to_pi(heading_ref - self.heading)
         # kinematic bicycle: heading rate = v sin(beta) / (L/2), tan(delta) = 2 tan(beta)
-        beta = np.arcsin(_clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
-        return float(_clip(np.arctan(2.0 * np.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+        beta = math.asin(clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
+        return float(clip(math.atan(2.0 * math.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
 
     def act(self, action: dict | str | None = None) -> None:
         if self.cut_in is not None and not self.crashed:
@@ -149,11 +150,6 @@ class TypedDriverVehicle(IDMVehicle):
     def step(self, dt: float) -> None:
         self.clock_s += dt
         super().step(dt)
-
-
-def _clip(x: float, lo: float, hi: float) -> float:
-    """``np.clip`` for one float, the same value (NaN stays NaN) without numpy's per-call cost."""
-    return lo if x < lo else hi if x > hi else x
 
 
 def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
@@ -374,7 +370,8 @@ class TrafficManager:
         on_road = {vehicle_id(v) for v in road.vehicles}
         cutoff = self.time_s - self.REENTRY_COOLDOWN_S
         self._left_at = {i: t for i, t in self._left_at.items() if t > cutoff}
-        return [i for i in self.population.drivers if i not in on_road and i not in self._left_at]
+        # population ids are 1..size in order: the free ones, ascending
+        return sorted(self.population.drivers.keys() - on_road - self._left_at.keys())
 
     def remove(self, v: Vehicle) -> None:
         """Note that ``v`` was taken off the road by the env; a driver re-enters at the far edge behind."""
@@ -458,14 +455,13 @@ class TrafficManager:
             return False
         lanes = road.network.lanes_list()
         edge = self.config.spawn_ahead_m if ahead else -self.config.spawn_behind_m
-        x = ego.position[0] + edge
+        x = float(ego.position[0]) + edge
+        # lanes with a vehicle within MIN_SPAWN_GAP_M of the entry point (one pass over the road)
+        occupied = {v.lane_index for v in road.vehicles if abs(float(v.position[0]) - x) < self.MIN_SPAWN_GAP_M}
         for lane_id in self.rng.permutation(len(lanes)):
             lane = lanes[int(lane_id)]
             lane_index = road.network.get_closest_lane_index(lane.position(x, 0))
-            occupied = any(
-                v.lane_index == lane_index and abs(v.position[0] - x) < self.MIN_SPAWN_GAP_M for v in road.vehicles
-            )
-            if occupied:
+            if lane_index in occupied:
                 continue
             driver = self.population[int(self.rng.choice(free))]
             # enter at the speed of the flow the vehicle joins

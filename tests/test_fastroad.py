@@ -59,13 +59,17 @@ def _run(fast: bool, extra=(), seconds=10.0):
 
 
 def test_trajectories_and_collisions_are_the_same_as_with_highway_envs_road():
-    for extra in ((), ("traffic.driver_types=false",)):
+    """The fast core against highway-env's Road (and, for plain traffic, its IDMVehicle):
+    typed drivers use the same vehicle code either way, so their runs are bit-identical;
+    plain IDM traffic is highway-env's arithmetic against our float version: within 1e-6 m."""
+    for extra, tolerance in (((), 0.0), (("traffic.driver_types=false",), 1e-6)):
         fast, crash_fast = _run(True, extra)
         stock, crash_stock = _run(False, extra)
         assert crash_fast == crash_stock and crash_fast is not None  # the collision happens, at the same step
         assert fast.keys() == stock.keys()
         for vid in fast:
-            assert np.array_equal(fast[vid][0], stock[vid][0]) and fast[vid][1:] == stock[vid][1:]
+            assert np.abs(fast[vid][0] - stock[vid][0]).max() <= tolerance
+            assert abs(fast[vid][1] - stock[vid][1]) <= tolerance and fast[vid][2] == stock[vid][2]
 
 
 def test_plain_idm_traffic_follows_stock_highway_v0_exactly():

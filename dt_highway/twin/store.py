@@ -15,6 +15,45 @@ import numpy as np
 from dt_highway.twin.uplink import GnssFix
 
 
+class _Track:
+    """One vehicle's fixes: the fix objects, and their rows in a growable array.
+
+    Rows live in ``buf[lo:hi]``. An in-order fix is written after the last row; anything
+    else (an out-of-order fix, a full buffer) builds a new buffer. Rows once written are
+    never changed in place, so an array handed out by :meth:`FixStore.history` (a view)
+    keeps its values whatever arrives later.
+    """
+
+    __slots__ = ("times", "fixes", "buf", "lo", "hi")
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.fixes: list[GnssFix] = []
+        self.buf = np.empty((64, 5))
+        self.lo = self.hi = 0
+
+    def insert(self, f: GnssFix) -> None:
+        row = (f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad)
+        i = bisect.bisect_right(self.times, f.t_s)
+        self.times.insert(i, f.t_s)
+        self.fixes.insert(i, f)
+        if i == len(self.times) - 1 and self.hi < len(self.buf):
+            self.buf[self.hi] = row
+            self.hi += 1
+            return
+        rows = self.buf[self.lo:self.hi]
+        new = np.empty((max(64, 2 * (len(rows) + 1)), 5))
+        new[:i] = rows[:i]
+        new[i] = row
+        new[i + 1:len(rows) + 1] = rows[i:]
+        self.buf, self.lo, self.hi = new, 0, len(rows) + 1
+
+    def drop_first(self, n: int) -> None:
+        del self.times[:n]
+        del self.fixes[:n]
+        self.lo += n
+
+
 class FixStore:
     """Per-vehicle fix histories.
 
@@ -25,81 +64,64 @@ class FixStore:
         if window_s <= 0:
             raise ValueError(f"window_s must be > 0 (got {window_s})")
         self.window_s = window_s
-        self._times: dict[int, list[float]] = {}
-        self._fixes: dict[int, list[GnssFix]] = {}
-        self._rows: dict[int, list[tuple[float, float, float, float, float]]] = {}
-        self._arrays: dict[int, np.ndarray] = {}  # history() per vehicle until its next change
+        self._tracks: dict[int, _Track] = {}
 
     def add(self, fixes: Iterable[GnssFix]) -> set[int]:
         """Insert fixes; :return: the ids of the vehicles that got new data."""
         touched: set[int] = set()
         for f in fixes:
-            times = self._times.setdefault(f.vehicle_id, [])
-            items = self._fixes.setdefault(f.vehicle_id, [])
-            rows = self._rows.setdefault(f.vehicle_id, [])
-            i = bisect.bisect_right(times, f.t_s)
-            times.insert(i, f.t_s)
-            items.insert(i, f)
-            rows.insert(i, (f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad))
+            track = self._tracks.get(f.vehicle_id)
+            if track is None:
+                track = self._tracks[f.vehicle_id] = _Track()
+            track.insert(f)
             touched.add(f.vehicle_id)
         for vid in touched:
-            self._arrays.pop(vid, None)
             self._prune(vid)
         return touched
 
     def _prune(self, vid: int) -> None:
-        times = self._times[vid]
+        track = self._tracks[vid]
+        times = track.times
         cut = bisect.bisect_left(times, times[-1] - self.window_s)
         if cut:
-            del times[:cut]
-            del self._fixes[vid][:cut]
-            del self._rows[vid][:cut]
+            track.drop_first(cut)
 
     def drop_older_than(self, t_s: float) -> None:
         """Forget vehicles whose newest fix is older than ``t_s`` [s] (they left)."""
-        for vid in [v for v, t in self._times.items() if t[-1] < t_s]:
-            del self._times[vid]
-            del self._fixes[vid]
-            del self._rows[vid]
-            self._arrays.pop(vid, None)
+        for vid in [v for v, tr in self._tracks.items() if tr.times[-1] < t_s]:
+            del self._tracks[vid]
 
     def clear(self) -> None:
         """Forget every history."""
-        self._times.clear()
-        self._fixes.clear()
-        self._rows.clear()
-        self._arrays.clear()
+        self._tracks.clear()
 
     def __contains__(self, vehicle_id: int) -> bool:
-        return vehicle_id in self._times
+        return vehicle_id in self._tracks
 
     def __len__(self) -> int:
-        return len(self._times)
+        return len(self._tracks)
 
     def vehicle_ids(self) -> list[int]:
         """:return: ids with a history, sorted."""
-        return sorted(self._times)
+        return sorted(self._tracks)
 
     def n_fixes(self) -> int:
         """:return: the number of fixes held in all (for memory checks)."""
-        return sum(len(t) for t in self._times.values())
+        return sum(len(tr.times) for tr in self._tracks.values())
 
     def latest(self, vehicle_id: int) -> GnssFix | None:
         """:return: the newest fix of a vehicle, or ``None``."""
-        items = self._fixes.get(vehicle_id)
-        return items[-1] if items else None
+        track = self._tracks.get(vehicle_id)
+        return track.fixes[-1] if track is not None and track.fixes else None
 
     def history(self, vehicle_id: int) -> np.ndarray:
         """The history as an array of rows ``(t_s, x_m, y_m, speed_mps, heading_rad)``, oldest first.
 
-        :return: a read-only array (kept until the vehicle's next fix: copy it to change it)
+        :return: a read-only array; its values never change (later fixes go elsewhere)
         """
-        arr = self._arrays.get(vehicle_id)
-        if arr is None:
-            rows = self._rows.get(vehicle_id)
-            if not rows:
-                return np.empty((0, 5))
-            arr = np.array(rows, dtype=float)
-            arr.setflags(write=False)
-            self._arrays[vehicle_id] = arr
-        return arr
+        track = self._tracks.get(vehicle_id)
+        if track is None or track.hi == track.lo:
+            return np.empty((0, 5))
+        view = track.buf[track.lo:track.hi]
+        view.flags.writeable = False
+        return view

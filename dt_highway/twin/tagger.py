@@ -53,6 +53,14 @@ class HighwayMap:
         k = np.rint((np.asarray(y_m, dtype=float) - self.first_lane_y_m) / self.lane_width_m)
         return np.clip(k, 0, self.n_lanes - 1).astype(int)
 
+    def lane_of_one(self, y_m: float) -> int:
+        """:return: ``int(lane_of(y_m))`` for one finite position, without numpy's per-call cost
+        (``round`` rounds half to even, as ``np.rint``)."""
+        k = (float(y_m) - self.first_lane_y_m) / self.lane_width_m
+        if k != k or abs(k) > 1e9:  # NaN or absurd: numpy's answer
+            return int(self.lane_of(y_m))
+        return min(max(round(k), 0), self.n_lanes - 1)
+
 
 @dataclass(frozen=True)
 class LaneChange:
@@ -77,6 +85,23 @@ class LaneChange:
     sudden: bool
 
 
+def median(a: np.ndarray) -> float:
+    """``float(np.median(a))`` of a non-empty 1-D array, the same value (the middle element, or
+    the mean of the two middle ones; NaN if any is NaN) at a tenth of ``np.median``'s cost,
+    which the twin pays several times per vehicle and update."""
+    n = len(a)
+    k = n // 2
+    if n % 2:
+        part = np.partition(a, (k, n - 1))
+        value = float(part[k])
+    else:
+        part = np.partition(a, (k - 1, k, n - 1))
+        value = float((part[k - 1] + part[k]) / 2)
+    if part[-1] != part[-1]:  # NaN sorts last (the last place is partitioned too): np.median gives NaN
+        return math.nan
+    return value
+
+
 def moving_average(t_s: np.ndarray, y: np.ndarray, window_s: float) -> np.ndarray:
     """Centred moving average over a time window (handles uneven sampling).
 
@@ -87,9 +112,12 @@ def moving_average(t_s: np.ndarray, y: np.ndarray, window_s: float) -> np.ndarra
     """
     if len(y) == 0:
         return y.astype(float)
-    csum = np.concatenate([[0.0], np.cumsum(y, dtype=float)])
-    lo = np.searchsorted(t_s, t_s - window_s / 2, side="left")
-    hi = np.searchsorted(t_s, t_s + window_s / 2, side="right")
+    csum = np.empty(len(y) + 1)
+    csum[0] = 0.0
+    np.cumsum(y, dtype=float, out=csum[1:])
+    half = window_s / 2
+    lo = t_s.searchsorted(t_s - half, side="left")
+    hi = t_s.searchsorted(t_s + half, side="right")
     return (csum[hi] - csum[lo]) / (hi - lo)
 
 
@@ -103,7 +131,7 @@ def boundary_crossings(
     if len(t_s) == 0:
         return []
     w = road.lane_width_m
-    lane = int(road.lane_of(y_smooth[0]))
+    lane = road.lane_of_one(y_smooth[0])
     out: list[tuple[float, int, int]] = []
     i = 1
     while i < len(t_s):
@@ -287,25 +315,29 @@ class Tagger:
             return rec
         t, x, y = h[:, 0], h[:, 1], h[:, 2]
         # observed time: new fixes since last update, silences capped
-        new = t[t > rec.last_fix_s]
+        new = t[t.searchsorted(rec.last_fix_s, side="right"):]  # t is sorted: the fixes after the last one seen
         if len(new):
-            prev = np.concatenate([[rec.last_fix_s if math.isfinite(rec.last_fix_s) else new[0]], new[:-1]])
-            rec.observed_s += float(np.minimum(new - prev, self.MAX_OBSERVED_GAP_S).sum())
+            step = np.empty(len(new))
+            step[0] = new[0] - (rec.last_fix_s if math.isfinite(rec.last_fix_s) else new[0])
+            step[1:] = new[1:] - new[:-1]
+            rec.observed_s += float(np.minimum(step, self.MAX_OBSERVED_GAP_S, out=step).sum())
             rec.last_fix_s = float(new[-1])
         # analyse only the newest stretch without silences or jumps (a vehicle may leave and
         # come back elsewhere)
-        dt = np.diff(t)
-        max_gap = max(self.MAX_OBSERVED_GAP_S, 3.0 * float(np.median(dt))) if len(dt) else self.MAX_OBSERVED_GAP_S
-        jump = np.hypot(np.diff(x) - h[1:, 3] * dt, np.diff(y))
-        gaps = np.flatnonzero((dt > max_gap) | (jump > self.MAX_JUMP_M))
+        dt = t[1:] - t[:-1]  # np.diff, without its per-call cost
+        dt_median = median(dt) if len(dt) else math.nan
+        max_gap = max(self.MAX_OBSERVED_GAP_S, 3.0 * dt_median) if len(dt) else self.MAX_OBSERVED_GAP_S
+        jump = np.hypot((x[1:] - x[:-1]) - h[1:, 3] * dt, y[1:] - y[:-1])
+        gaps = ((dt > max_gap) | (jump > self.MAX_JUMP_M)).nonzero()[0]
         if len(gaps):
             start = int(gaps[-1]) + 1
             t, x, y = t[start:], x[start:], y[start:]
+            dt_median = median(t[1:] - t[:-1]) if len(t) >= 2 else math.nan
         if len(t) < 2:
             self._retag(rec, now_s)
             return rec
         # at low fix rates, average at least MIN_SMOOTHING_SAMPLES fixes
-        dt_fix = float(np.median(np.diff(t)))
+        dt_fix = dt_median
         window = max(cfg.smoothing_s, self.MIN_SMOOTHING_SAMPLES * dt_fix)
         ys = moving_average(t, y, window)
         half = cfg.fit_window_s
@@ -360,7 +392,7 @@ class Tagger:
         """
         if len(y) < 3:
             return 0.0
-        sigma = 1.4826 * float(np.median(np.abs(np.diff(y)))) / math.sqrt(2.0)
+        sigma = 1.4826 * median(np.abs(y[1:] - y[:-1])) / math.sqrt(2.0)
         return sigma / math.sqrt(max(1.0, n_window))
 
     def _retag(self, rec: DriverRecord, now_s: float) -> None:
