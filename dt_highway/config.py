@@ -155,7 +155,9 @@ class TrafficConfig(_Section):
     )
     recycle: bool = Field(True, description="re-enter NPCs that drift far from the ego, remove crashed ones")
     fast_road: bool = Field(
-        True, description="vectorised neighbour search and collision broad phase (same results as highway-env's Road)"
+        True, description="the fast traffic core: highway-env's Road, IDM vehicles and Kinematics observation with "
+        "their hot paths replaced (the same trajectories up to rounding); False: highway-env's own Road, IDMVehicle "
+        "and observation (our typed drivers compute on floats either way)"
     )
     crashed_removal_s: float = Field(5.0, gt=0, description="a crashed NPC is towed away after this long [s]")
     population_size: int = Field(

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.action import action_factory
-from highway_env.envs.common.observation import KinematicObservation, ObservationType, observation_factory
+from highway_env.envs.common.observation import ObservationType, observation_factory
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork

@@ -15,11 +15,12 @@ of vehicles (``step``). With 50 vehicles those two loops are most of a simulatio
 * the closest lane of each vehicle after each step (:class:`FastRoadNetwork`) is found for
   all straight lanes at once, with highway-env's distance and tie rule.
 * ``step`` moves the vehicles as highway-env does, then runs highway-env's own collision
-  check only for the pairs a broad phase cannot rule out, in highway-env's pair order. The
+  check only for the pairs two cheap tests cannot rule out, in highway-env's pair order. The
   broad phase is highway-env's own early exit (distance between centres against the half
-  diagonals plus the caller's travel in the step), computed for all pairs at once with a
-  1e-6 m margin: a pair it skips is one whose check would return "no contact" with no side
-  effect.
+  diagonals plus the caller's travel in the step), computed for all pairs at once; the
+  narrow phase is the separating-axis test of the two rectangles on floats
+  (:func:`~dt_highway.fastvehicle.surely_apart`). Both keep a 1e-6 m margin: a pair they
+  skip is one whose check would return "no contact" with no side effect.
 
 Only our env uses it (highway-env's classes are not patched).
 """
