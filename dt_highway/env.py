@@ -247,7 +247,10 @@ class DTHighwayEnv(HighwayEnv):
             self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
         elif obs_cfg.get("type") == "Kinematics" and self.dt_config.traffic.fast_road:
             obs_cfg.pop("type")
-            self.observation_type = FastKinematicObservation(self, **obs_cfg)
+            try:
+                self.observation_type = FastKinematicObservation(self, **obs_cfg)
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"highway.observation for type 'Kinematics': {err}") from None
         else:
             self.observation_type = observation_factory(self, self.config["observation"])
         act_cfg = dict(self.config["action"])

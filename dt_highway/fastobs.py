@@ -11,12 +11,22 @@ them over whole episodes).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
 
 
 class FastKinematicObservation(KinematicObservation):
-    """highway-env's ``Kinematics`` observation (same options, same values), built with numpy."""
+    """highway-env's ``Kinematics`` observation (same options, same values), built with numpy.
+
+    :raises ValueError: if a feature is named twice (pandas would give the column twice)
+    """
+
+    def __init__(self, env: Any, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        if len(set(self.features)) != len(self.features):
+            raise ValueError(f"observation features must be distinct names (got {self.features})")
 
     def observe(self) -> np.ndarray:
         if not self.env.road:

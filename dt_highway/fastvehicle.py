@@ -15,8 +15,8 @@ few percent of arguments. ``dt-highway bench sim`` prints how far the same vehic
 up apart after 30 s of simulated time, and a test bounds it at 1e-6 m.
 
 Objects whose class overrides the pieces used here (a lane other than a straight one, a
-vehicle with its own ``velocity``, ``lane_distance_to`` or ``polygon``) go through
-highway-env's code. Only our env uses these classes; highway-env is not patched.
+vehicle with its own ``velocity``, ``lane_distance_to``, ``polygon`` or collision check)
+go through highway-env's code, or their own. Only our env uses these classes; highway-env is not patched.
 """
 
 from __future__ import annotations
@@ -81,12 +81,13 @@ def longitudinal(lane: AbstractLane, x: float, y: float) -> float:
 
 
 # ---------------------------------------------------------------------------------- classes
-_STOCK: dict[type, tuple[bool, bool, bool, bool]] = {}
+_STOCK: dict[type, tuple[bool, bool, bool, bool, bool]] = {}
 
 
-def _stock(cls: type) -> tuple[bool, bool, bool, bool]:
+def _stock(cls: type) -> tuple[bool, bool, bool, bool, bool]:
     """Per class, once: (is a highway-env ``Vehicle``; its ``velocity``/``direction`` are
-    highway-env's; its ``lane_distance_to`` is highway-env's; its ``polygon`` is highway-env's)."""
+    highway-env's; its ``lane_distance_to`` is highway-env's; its ``polygon`` is highway-env's;
+    its collision check, ``handle_collisions`` and ``_is_colliding``, is highway-env's)."""
     flags = _STOCK.get(cls)
     if flags is None:
         kinematic = cls.velocity in (Vehicle.velocity, RoadObject.velocity) and cls.direction is RoadObject.direction
@@ -95,6 +96,7 @@ def _stock(cls: type) -> tuple[bool, bool, bool, bool]:
             kinematic,
             cls.lane_distance_to is RoadObject.lane_distance_to or cls.lane_distance_to is FastIDMVehicle.lane_distance_to,
             cls.polygon is RoadObject.polygon,
+            cls.handle_collisions is RoadObject.handle_collisions and cls._is_colliding is RoadObject._is_colliding,
         )
     return flags
 
@@ -131,7 +133,10 @@ def surely_apart(a: RoadObject, b: RoadObject, dt: float, margin: float) -> bool
     if some axis separates it by more than ``margin`` [m] now and some axis does after the
     sweep. :return: ``False`` when in doubt (the caller then runs highway-env's check).
     """
-    if not (_stock(type(a))[3] and _stock(type(b))[3] and _stock(type(a))[1] and _stock(type(b))[1]):
+    fa, fb = _stock(type(a)), _stock(type(b))
+    # both rectangles and velocities are highway-env's, and so is the check ``a`` would run
+    # (highway-env calls only ``a.handle_collisions(b)``, hence ``a._is_colliding``)
+    if not (fa[1] and fa[3] and fa[4] and fb[1] and fb[3]):
         return False
     ax, ay = a.position.tolist()
     bx, by = b.position.tolist()

@@ -120,3 +120,24 @@ def test_median_and_lane_of_one_are_numpys():
     road = HighwayMap(4.0, 4, first_lane_y_m=0.0)
     for y in [*rng.uniform(-10, 30, 2000), 2.0, 6.0, -2.0, 10.0, 14.0, 18.0, -6.0]:
         assert road.lane_of_one(float(y)) == int(road.lane_of(float(y)))
+
+
+class _WideBerth(Vehicle):
+    """A vehicle with its own collision check: contact within its length plus 0.5 m."""
+
+    def _is_colliding(self, other, dt):  # noqa: ANN001, ANN202 - highway-env's signature
+        close = bool(np.linalg.norm(other.position - self.position) < self.LENGTH + 0.5)
+        return close, False, np.zeros(2)
+
+
+def test_a_vehicle_with_its_own_collision_check_gets_it():
+    from dt_highway.fastroad import FastRoad
+
+    crashed = {}
+    for name, cls in (("stock", Road), ("fast", FastRoad)):
+        road = cls(network=RoadNetwork.straight_road_network(2, length=1000.0))
+        a, b = _WideBerth(road, [100.0, 0.0], 0.0, 20.0), Vehicle(road, [105.3, 0.0], 0.0, 20.0)
+        road.vehicles = [a, b]
+        road.step(DT)
+        crashed[name] = (a.crashed, b.crashed)
+    assert crashed["fast"] == crashed["stock"] == (True, True)
