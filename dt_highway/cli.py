@@ -135,6 +135,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- study / report
 STUDY_SCENARIO = "envs/highway-trial.toml"
+EVAL_SCENARIO = "envs/highway-trial.toml"
 """The study's default scenario: the paper's trial highway (section IV-C)"""
 QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
 """The README's main job: a small paired study with the human-like driver"""
@@ -487,6 +488,51 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train an RL driver with stable-baselines3."""
+    from dt_highway.rl.config import load_train_config
+    from dt_highway.rl.train import sidecar_path, train
+
+    cfg = load_train_config(args.config)
+    out = Path(args.out)
+    if out.suffix != ".zip":
+        raise ConfigError(f"--out must name a .zip file, e.g. agents/{Path(args.config).stem}.zip (got {out})")
+    if out.exists() and not args.force:
+        raise ConfigError(f"{out} exists: pass --force to replace it")
+    meta = train(cfg, out, timesteps=args.timesteps, n_envs=args.n_envs, tensorboard_dir=args.tensorboard,
+                 progress=not args.quiet)
+    last = meta["evaluations"][-1] if meta["evaluations"] else None
+    print(f"trained {cfg.algorithm} ({cfg.observation}) for {meta['timesteps_done']} steps in "
+          f"{meta['wall_time_s']:.0f} s ({meta['steps_per_s']} steps/s)" + (" - interrupted" if meta["interrupted"] else ""))
+    if last:
+        print(f"last evaluation ({cfg.eval_episodes} held-out episodes at {last['timesteps']} steps): "
+              f"mean return {last['mean_return']:.2f}, mean length {last['mean_length']:.0f} decisions")
+    print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), checkpoints and logs in {meta['checkpoints']}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
+    from dt_highway.rl.evaluate import evaluate
+
+    scenario = args.scenario or EVAL_SCENARIO
+    with _progress(args.episodes, "evaluate", args.quiet, unit="episode") as bar:
+        result = evaluate(args.driver, args.episodes, args.seed, scenario, args.condition, tuple(args.overrides),
+                          progress=bar.update)
+    if args.out_json:
+        Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out_json).write_text(dump_json(result) + "\n")
+    if args.json:
+        print(dump_json({k: v for k, v in result.items() if k != "per_episode" or args.episodes_json}))
+    else:
+        print(f"{args.driver}: {args.episodes} episodes of {scenario} ({args.condition}), seeds "
+              f"{result['seeds'][0]}..{result['seeds'][1]}")
+        print(f"mean return {result['mean_return']:.2f}  collision rate {result['collision_rate']:.2f}  "
+              f"mean speed {result['mean_speed_kmh']:.1f} km/h  mean TTC {result['mean_ttc_s']:.2f} s  "
+              f"cut-in min TTC {result['cut_in_ttc_min_s']:.2f} s ({result['cut_ins']} cut-ins)")
+    return 0
+
+
 def _score(text: str) -> float:
     try:
         value = float(text)
@@ -627,6 +673,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--practice-duration", type=_positive(float, "--practice-duration"), default=60.0,
                    help="practice trial length [s] (default 60)")
     p.set_defaults(func=cmd_session)
+
+    p = sub.add_parser("train", help="train an RL driver (stable-baselines3) from agents/<name>.toml")
+    p.add_argument("--config", required=True, help="training config, e.g. agents/ppo-baseline.toml (kind = \"rl\")")
+    p.add_argument("--out", required=True, help="model file to write, e.g. agents/ppo-baseline.zip")
+    p.add_argument("--timesteps", type=_positive(int, "--timesteps"), help="env steps (default: the config's)")
+    p.add_argument("--n-envs", type=_positive(int, "--n-envs"), help="parallel envs (default: the config's)")
+    p.add_argument("--tensorboard", metavar="DIR", help="also write TensorBoard logs to DIR (needs tensorboard)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("evaluate", help="any driver (policy .zip or scripted .toml) on the same seeds")
+    _add_config_args(p, EVAL_SCENARIO)
+    p.add_argument("--driver", required=True, help="agents/<name>.zip or agents/<driver>.toml")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=10, help="episodes (default 10)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode; episode i uses seed + i (default 0)")
+    p.add_argument("--condition", choices=("baseline", "adas"), default="adas",
+                   help="with the ADAS overlay or without (default adas)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--episodes-json", action="store_true", help="with --json: include every episode's metrics")
+    p.add_argument("--out", dest="out_json", metavar="FILE", help="also write the JSON result (every episode) to FILE")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("report", help="the safety-metrics report of a study directory")
     p.add_argument("study", help="study directory (runs/<name>)")

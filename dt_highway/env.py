@@ -36,7 +36,7 @@ from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
-from dt_highway.drivers.control import DriverAction
+from dt_highway.drivers.control import DiscreteDriverAction, DriverAction
 from dt_highway.fastobs import FastKinematicObservation
 from dt_highway.fastroad import FastRoad
 from dt_highway.fastvehicle import FastIDMVehicle, velocity
@@ -119,6 +119,44 @@ class TwinTaggedKinematics(FastKinematicObservation):
         return out
 
 
+class OverlayKinematics(FastKinematicObservation):
+    """highway-env's Kinematics observation plus a column ``marked``: 1 when the ADAS overlay
+    shows an "aggressive driver" marker on that vehicle, as the driver sees it on the screen.
+
+    The marker is read the way :func:`~dt_highway.drivers.scripted.cars_under_marks` reads it
+    for scripted drivers: the car whose visible outline best fits the marker's box. When the
+    fusion put the label on the wrong car, this column is on the wrong car too; without the
+    ADAS (camera or fusion off, the baseline condition) it is all zeros. The twin's verdict
+    reaches the observation only through the fusion and the overlay, never from ground truth.
+    """
+
+    OVERLAY_FEATURES = ["marked"]
+
+    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        self.base_features = list(self.features)
+        self.features = self.base_features + self.OVERLAY_FEATURES
+
+    def observe(self) -> np.ndarray:
+        features, self.features = self.features, self.base_features
+        try:
+            base = super().observe()
+            rows = self.observed()
+        finally:
+            self.features = features
+        out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
+        out[:, : base.shape[1]] = base
+        adas = self.env.adas_output()
+        if adas is not None and adas["overlay"]:
+            from dt_highway.drivers.scripted import cars_under_marks
+
+            marked = cars_under_marks(self.env, adas["overlay"])
+            for r, v in enumerate(rows[1: base.shape[0]], start=1):
+                if vehicle_id(v) in marked:
+                    out[r, -1] = 1.0
+        return out
+
+
 class CameraObservation(ObservationType):
     """The ego camera's images, for vision agents: ``{"rgb": (H, W, 3), "depth": (H, W, 1)}``.
 
@@ -198,6 +236,7 @@ class DTHighwayEnv(HighwayEnv):
         self.fusion: Fusion | None = None
         self.overlay: OverlayStabilizer | None = None
         self.adas: dict[str, Any] | None = None
+        self._adas_key: tuple[int, int] | None = None
         self.safety = SafetyMonitor(lane_width_m=StraightLane.DEFAULT_WIDTH)
         self._safety_on = False
         self._safety_samples: list[dict[str, Any]] = []
@@ -241,6 +280,12 @@ class DTHighwayEnv(HighwayEnv):
                 raise ConfigError(
                     f"highway.observation for type 'Camera' takes only 'depth' (got {sorted(obs_cfg)})"
                 ) from None
+        elif obs_cfg.get("type") == "OverlayKinematics":
+            obs_cfg.pop("type")
+            try:
+                self.observation_type = OverlayKinematics(self, **obs_cfg)
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"highway.observation for type 'OverlayKinematics': {err}") from None
         elif self.dt_config.twin.in_observation:
             if obs_cfg.pop("type", "Kinematics") != "Kinematics":
                 raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
@@ -254,10 +299,10 @@ class DTHighwayEnv(HighwayEnv):
         else:
             self.observation_type = observation_factory(self, self.config["observation"])
         act_cfg = dict(self.config["action"])
-        if act_cfg.get("type") == "Driver":
-            act_cfg.pop("type")
+        if act_cfg.get("type") in ("Driver", "DiscreteDriver"):
+            kind = act_cfg.pop("type")
             try:
-                self.action_type = DriverAction(self, **act_cfg)
+                self.action_type = (DriverAction if kind == "Driver" else DiscreteDriverAction)(self, **act_cfg)
             except (TypeError, ValueError) as err:
                 raise ConfigError(f"highway.action: {err}") from None
         else:
@@ -575,13 +620,26 @@ class DTHighwayEnv(HighwayEnv):
             # the camera's ground truth (instance boxes); the images are on camera_frame()
             info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_frame().vehicles.values()]
         if self.fusion is not None:
-            self.adas = self._run_fusion()
-            info["adas"] = self.adas
+            info["adas"] = self.adas_output()
         # safety samples of every simulation step since the last info (evaluation)
         info["safety"] = {"samples": self._safety_samples, "cut_ins": self._cut_ins}
         self._safety_samples, self._cut_ins = [], []
         self._events = []
         return info
+
+    def adas_output(self) -> dict[str, Any] | None:
+        """The ADAS output of this step (detector, fusion, overlay), computed once per step
+        for whoever asks first (the observation, ``info``).
+
+        :return: see :meth:`_run_fusion`; ``None`` when the fusion is off
+        """
+        if self.fusion is None:
+            return None
+        key = (self._episode, self.steps)
+        if self.adas is None or self._adas_key != key:
+            self.adas = self._run_fusion()
+            self._adas_key = key
+        return self.adas
 
     def _run_fusion(self) -> dict[str, Any]:
         """Detector and fusion on this step's frame: the ADAS output (never ground truth).

@@ -28,19 +28,24 @@ class FastKinematicObservation(KinematicObservation):
         if len(set(self.features)) != len(self.features):
             raise ValueError(f"observation features must be distinct names (got {self.features})")
 
-    def observe(self) -> np.ndarray:
-        if not self.env.road:
-            return np.zeros(self.space().shape)
+    def observed(self) -> list[Any]:
+        """The observer and the objects of the observation's rows, in row order (highway-env's
+        ``close_objects_to`` with this observation's options)."""
         ego = self.observer_vehicle
-        records = [ego.to_dict()]
         close = self.env.road.close_objects_to(
             ego, self.env.PERCEPTION_DISTANCE, count=self.vehicles_count - 1, see_behind=self.see_behind,
             sort=self.order == "sorted", vehicles_only=not self.include_obstacles,
         )
+        return [ego, *(close[-self.vehicles_count + 1:] if close else [])]
+
+    def observe(self) -> np.ndarray:
+        if not self.env.road:
+            return np.zeros(self.space().shape)
+        ego, *close = self.observed()
+        records = [ego.to_dict()]
         if close:
             origin = ego if not self.absolute else None
-            records += [v.to_dict(origin, observe_intentions=self.observe_intentions)
-                        for v in close[-self.vehicles_count + 1:]]
+            records += [v.to_dict(origin, observe_intentions=self.observe_intentions) for v in close]
         # one column per feature, as pandas builds it from the records (a key some rows lack is
         # NaN there; one that no row has is pandas' KeyError)
         missing = [f for f in self.features if not any(f in r for r in records)]

@@ -22,7 +22,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from dt_highway.config import ConfigError, load_config
+from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.jsonio import dump_json
 
 CONDITIONS = ("baseline", "adas")
@@ -40,7 +40,8 @@ def find_file(path: str, folder: str) -> str:
 
 
 def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[str, str | None]:
-    """Copy the driver and scenario files into ``<out>/inputs/`` and return the copies' paths.
+    """Copy the driver and scenario files into ``<out>/inputs/`` and return the copies' paths
+    (a policy's ``.zip`` goes with the ``.json`` beside it).
 
     The trials read the copies, so that editing a file while a study runs cannot change it
     half-way, and the study directory keeps a record of what it ran. Resuming a study with a
@@ -50,7 +51,10 @@ def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[s
     """
     inputs = Path(out) / "inputs"
     frozen: list[str | None] = []
-    for path in (driver, scenario):
+    paths: list[str | None] = [driver, scenario]
+    if Path(driver).suffix == ".zip":  # a trained policy: its metadata goes with it
+        paths.append(str(Path(driver).with_suffix(".json")))
+    for path in paths:
         if path is None:
             frozen.append(None)
             continue
@@ -157,8 +161,9 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
                 return {"status": "failed", "directory": str(out), "error": str(err)}
         return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
     try:
-        cfg = load_config(spec.scenario, list(spec.overrides), condition_config(spec.condition))
         driver = load_driver(spec.driver)
+        cfg = load_config(spec.scenario, list(spec.overrides),
+                          deep_merge(condition_config(spec.condition), driver.config_overrides()))
     except ConfigError as err:
         return {"status": "failed", "directory": str(out), "error": str(err)}
     meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(), "participant": spec.participant,

@@ -8,7 +8,8 @@ of :class:`~dt_highway.drivers.scripted.HumanParams` / ``IDMParams``::
     [idm]
     desired_speed_mps = 27.0
 
-Trained policies (``*.zip``) arrive with the RL issue under the same interface.
+Trained policies (``agents/<name>.zip``, :mod:`dt_highway.rl`) load through the same
+:func:`load_driver`; their training configs (``kind = "rl"``) are not drivers themselves.
 """
 
 from __future__ import annotations
@@ -71,6 +72,9 @@ def make_driver(tree: dict[str, Any], name: str = "driver") -> Driver:
     """
     tree = dict(tree)
     kind = tree.pop("kind", None)
+    if kind == "rl":
+        raise ConfigError("this is an RL training config: train it (dt-highway train --config FILE --out "
+                          "agents/NAME.zip) and drive with the .zip")
     if kind not in KINDS:
         raise ConfigError(f"a driver file needs kind = one of {', '.join(repr(k) for k in KINDS)} (got {kind!r})")
     if kind == "human":
@@ -98,13 +102,16 @@ def make_driver(tree: dict[str, Any], name: str = "driver") -> Driver:
 
 
 def load_driver(path: str | Path) -> Driver:
-    """A driver from its file (``agents/<name>.toml``).
+    """A driver from its file: ``agents/<name>.toml`` (scripted) or ``agents/<name>.zip`` (a trained
+    policy; a pickle: load only files you trust).
 
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
     p = Path(path)
     if p.suffix == ".zip":
-        raise ConfigError(f"{p}: trained policies (.zip) are not supported yet: use a scripted driver (.toml)")
+        from dt_highway.rl.policy import load_policy
+
+        return load_policy(p)
     try:
         tree = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:

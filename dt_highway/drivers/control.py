@@ -125,3 +125,46 @@ class DriverAction(ActionType):
         lane = -1 if a[1] <= -0.5 else (1 if a[1] >= 0.5 else 0)
         self.controlled_vehicle.command(accel, lane)
         self.last_action = a
+
+
+DEFAULT_DISCRETE_ACCELS_MPS2 = (-6.0, -3.0, -1.0, 0.0, 1.0, 2.0)
+"""Accelerations of the ``DiscreteDriver`` action, keeping the lane [m/s^2]"""
+
+
+class DiscreteDriverAction(DriverAction):
+    """The ``Driver`` action as a finite menu, for value-based agents (DQN) and discrete PPO.
+
+    Action ``k < len(accels)``: keep the lane with acceleration ``accels[k]`` [m/s^2]; the last
+    two: one lane left, one lane right, with no acceleration. Each choice is the ``Driver``
+    action :meth:`driver_action` returns, so a policy trained on it drives anywhere a
+    ``Driver`` action is taken (studies, the keyboard window's replay...).
+
+    :param env: the env
+    :param accels_mps2: the accelerations to choose from [m/s^2], within the Driver limits
+    """
+
+    def __init__(self, env: Any, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        try:
+            accels = [float(a) for a in accels_mps2]
+        except (TypeError, ValueError):
+            raise ValueError(f"accels_mps2 must be a list of numbers [m/s^2] (got {accels_mps2!r})") from None
+        if not accels or not all(self.accel_min_mps2 <= a <= self.accel_max_mps2 for a in accels):
+            raise ValueError(f"accels_mps2 must be a non-empty list within [{self.accel_min_mps2}, "
+                             f"{self.accel_max_mps2}] m/s^2 (got {accels})")
+        if self.steering:
+            raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
+        self.menu = [(a, 0.0) for a in accels] + [(0.0, -1.0), (0.0, 1.0)]
+
+    def space(self) -> spaces.Discrete:
+        return spaces.Discrete(len(self.menu))
+
+    def driver_action(self, index: Any) -> np.ndarray:
+        """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index``."""
+        k = int(np.asarray(index).reshape(-1)[0])
+        if not 0 <= k < len(self.menu):
+            raise ValueError(f"a DiscreteDriver action is an integer in 0..{len(self.menu) - 1} (got {index!r})")
+        return np.array(self.menu[k], dtype=float)
+
+    def act(self, action: Any) -> None:
+        super().act(self.driver_action(action))

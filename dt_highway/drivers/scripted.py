@@ -166,7 +166,20 @@ def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set
     :return: ids of the vehicles the driver takes for marked
     """
     adas = info.get("adas")
-    if not adas or not adas.get("overlay"):
+    return cars_under_marks(env, adas.get("overlay") if adas else None, min_iou)
+
+
+def cars_under_marks(env: Any, overlay: list[dict[str, Any]] | None, min_iou: float = 0.3) -> set[int]:
+    """For each overlay item, the vehicle whose visible outline in this step's camera image
+    fits the item's box best (IoU >= ``min_iou``): which car a person sees the marker on,
+    right or wrong.
+
+    :param env: the env (unwrapped), for the camera frame the overlay was drawn on
+    :param overlay: the overlay items (``box`` [px]); ``None`` or empty: nothing marked
+    :param min_iou: least overlap between marker and outline [-]
+    :return: ids of the vehicles under a marker
+    """
+    if not overlay:
         return set()
     from dt_highway.perception.detect import iou
 
@@ -175,7 +188,7 @@ def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set
         return set()
     outlines = np.array([b for _, b in seen], dtype=float)
     marked = set()
-    for item in adas["overlay"]:
+    for item in overlay:
         fit = iou(np.asarray(item["box"], dtype=float)[None], outlines)[0]
         j = int(np.argmax(fit))
         if fit[j] >= min_iou:
@@ -197,6 +210,11 @@ class Driver:
 
     def params(self) -> dict[str, Any]:
         """The driver's resolved parameters (recorded in each trial's metadata)."""
+        return {}
+
+    def config_overrides(self) -> dict[str, Any]:
+        """What the driver needs in the env's configuration, whatever the condition (a camera
+        of a given size for a vision policy); merged over the condition's settings."""
         return {}
 
     def reset(self, env: Any, seed: int) -> None:

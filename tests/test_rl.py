@@ -1,0 +1,158 @@
+"""RL drivers: training configs, training smoke runs, policies as drivers, evaluation."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dt_highway.cli import main
+from dt_highway.config import ConfigError, load_config
+from dt_highway.drivers import load_driver
+from dt_highway.drivers.scripted import cars_under_marks
+from dt_highway.env import DTHighwayEnv, OverlayKinematics
+from dt_highway.rl.config import load_train_config, parse_train_config
+from dt_highway.rl.evaluate import evaluate
+from dt_highway.rl.policy import PolicyDriver, load_policy
+from dt_highway.rl.train import train
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = ["highway.duration=8", "twin.preroll_s=5", "highway.vehicles_count=12"]
+
+
+def _tiny(tmp_path: Path, observation: str, algorithm: str, n_envs: int = 1, steps: int = 200) -> Path:
+    hyper = {"PPO": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
+             "DQN": {"learning_starts": 50, "buffer_size": 1000, "train_freq": 4}}[algorithm]
+    cfg = parse_train_config({"kind": "rl", "algorithm": algorithm, "observation": observation, "scenario":
+                              str(ROOT / "envs/highway-trial.toml"), "set": SHORT, "timesteps": steps,
+                              "n_envs": n_envs, "eval_every_steps": 100, "eval_episodes": 1,
+                              "checkpoint_every_steps": 100, "hyperparameters": hyper})
+    out = tmp_path / f"{algorithm.lower()}-{observation}.zip"
+    meta = train(cfg, out, progress=False)
+    assert out.is_file() and out.with_suffix(".json").is_file()
+    assert meta["timesteps_done"] >= steps and meta["evaluations"] and meta["versions"]["stable-baselines3"]
+    assert meta["env_config"]["highway"]["observation"]["type"] == {"kinematics": "Kinematics",
+                                                                     "adas": "OverlayKinematics"}[observation]
+    assert any(out.with_suffix(".d").glob("checkpoint_*.zip"))
+    return out
+
+
+def test_training_smoke_runs_on_both_observation_settings(tmp_path):
+    base = _tiny(tmp_path, "kinematics", "PPO", n_envs=2)  # SubprocVecEnv, "dt_highway:dt-highway-v0" in the children
+    adas = _tiny(tmp_path, "adas", "DQN")
+    for path, observation, width in ((base, "kinematics", 5), (adas, "adas", 6)):
+        driver = load_driver(path)
+        assert isinstance(driver, PolicyDriver) and driver.config.observation == observation
+        assert driver.model.observation_space.shape == (7, width)
+        result = evaluate(str(path), 1, 3, str(ROOT / "envs/highway-trial.toml"), "adas", tuple(SHORT))
+        assert result["episodes"] == 1 and result["mean_steps"] > 0 and np.isfinite(result["mean_return"])
+
+
+def test_the_shipped_policies_load_and_drive():
+    for name, width in (("ppo-baseline", 5), ("ppo-adas", 6)):
+        path = ROOT / "agents" / f"{name}.zip"
+        driver = load_policy(path)
+        meta = json.loads(path.with_suffix(".json").read_text())
+        assert meta["evaluations"] and meta["timesteps_done"] >= 100_000
+        assert driver.model.observation_space.shape == (7, width)
+        for condition in ("baseline", "adas"):
+            result = evaluate(str(path), 1, 0, str(ROOT / "envs/highway-trial.toml"), condition, tuple(SHORT))
+            assert result["mean_steps"] > 0
+
+
+def test_a_policy_from_another_observation_space_is_refused(tmp_path, capsys):
+    src = ROOT / "agents" / "ppo-baseline.zip"
+    wrong = tmp_path / "wrong.zip"
+    shutil.copy(src, wrong)
+    meta = json.loads(src.with_suffix(".json").read_text())
+    meta["train_config"]["vehicles_count"] = 9  # says it sees 9 vehicles: the network takes 7
+    wrong.with_suffix(".json").write_text(json.dumps(meta))
+    env = DTHighwayEnv(config=load_config(str(ROOT / "envs/highway-trial.toml"), SHORT).to_dict())
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match="trained on observations"):
+        load_policy(wrong).reset(env, 0)
+    code = main(["evaluate", "--driver", str(wrong), "--episodes", "1", "--quiet", "--scenario",
+                 str(ROOT / "envs/highway-trial.toml"), *sum((["--set", s] for s in SHORT), [])])
+    err = capsys.readouterr().err
+    assert code == 2 and "trained on observations" in err and len(err.strip().splitlines()) == 1
+
+
+def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
+    good = ROOT / "agents" / "ppo-baseline.zip"
+    (tmp_path / "no-meta.zip").write_bytes(good.read_bytes())
+    (tmp_path / "foreign.zip").write_bytes(good.read_bytes())
+    (tmp_path / "foreign.json").write_text('{"hello": 1}')
+    (tmp_path / "broken.zip").write_bytes(b"not a zip")
+    shutil.copy(good.with_suffix(".json"), tmp_path / "broken.json")
+    for name, words in (("missing.zip", "not found"), ("no-meta.zip", "not a dt-highway policy"),
+                        ("foreign.zip", "not the metadata"), ("broken.zip", "cannot load")):
+        with pytest.raises(ConfigError, match=words):
+            load_driver(tmp_path / name)
+    with pytest.raises(ConfigError, match="training config"):
+        load_driver(ROOT / "agents" / "ppo-baseline.toml")  # a training config is not a driver
+    with pytest.raises(ConfigError, match="kind"):
+        load_train_config(ROOT / "agents" / "idm.toml")
+    for tree, words in (({"kind": "rl", "algorithm": "A2C"}, "algorithm"), ({"kind": "rl", "bogus": 1}, "bogus"),
+                        ({"kind": "rl", "observation": "radar"}, "observation"), ({"kind": "rl", "n_envs": 0}, "n_envs")):
+        with pytest.raises(ConfigError, match=words):
+            parse_train_config(tree)
+    cfg = tmp_path / "bad-hyper.toml"
+    cfg.write_text('kind = "rl"\ntimesteps = 10\nset = ["highway.duration=4", "twin.preroll_s=1"]\n'
+                   '[hyperparameters]\nnot_a_parameter = 1\n')
+    for argv, words in ((["train", "--config", str(cfg), "--out", str(tmp_path / "x.pt")], ".zip"),
+                        (["train", "--config", str(cfg), "--out", str(good)], "exists"),
+                        (["train", "--config", str(cfg), "--out", str(tmp_path / "x.zip")], "not_a_parameter"),
+                        (["evaluate", "--driver", str(tmp_path / "missing.zip")], "not found")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_discrete_driver_menu_and_the_overlay_column():
+    # a minute of pre-roll: the twin has tagged drivers by t = 0, so markers show up
+    cfg = load_config(str(ROOT / "envs/highway-trial.toml"), ["highway.duration=8", "highway.vehicles_count=16",
+                                                              "camera.enabled=true", "fusion.enabled=true"],
+                      {"highway": {"observation": {"type": "OverlayKinematics"}, "action": {"type": "DiscreteDriver"}}})
+    env = DTHighwayEnv(config=cfg.to_dict())
+    assert env.action_space.n == 8
+    assert list(env.action_type.driver_action(6)) == [0.0, -1.0] and list(env.action_type.driver_action(0)) == [-6.0, 0.0]
+    with pytest.raises(ValueError, match="0..7"):
+        env.action_type.driver_action(8)
+    obs, info = env.reset(seed=0)  # a seed with tagged drivers in view
+    assert isinstance(env.observation_type, OverlayKinematics)
+    marked_seen = 0
+    for _ in range(15):
+        obs, _, term, trunc, info = env.step(3)
+        rows = env.observation_type.observed()
+        under = cars_under_marks(env, info["adas"]["overlay"])  # the cars a person sees the markers on
+        for r, v in enumerate(rows[1:], start=1):
+            assert obs[r, -1] == float(v.dt_id in under)
+        assert obs[0, -1] == 0.0  # the ego's own row
+        marked_seen += int(obs[:, -1].sum())
+        if term or trunc:
+            break
+    assert marked_seen > 0
+    # the baseline condition: no overlay, the column stays 0
+    cfg = load_config(str(ROOT / "envs/highway-trial.toml"), SHORT,
+                      {"highway": {"observation": {"type": "OverlayKinematics"}, "action": {"type": "Driver"}}})
+    env = DTHighwayEnv(config=cfg.to_dict())
+    obs, _ = env.reset(seed=0)
+    for _ in range(5):
+        obs, *_ = env.step(np.zeros(2))
+        assert not obs[:, -1].any()
+
+
+def test_a_policy_runs_a_study_in_both_conditions_and_the_report_covers_it(tmp_path):
+    out = tmp_path / "study"
+    args = ["study", "--driver", str(ROOT / "agents" / "ppo-adas.zip"), "--trials", "1", "--workers", "1", "--out",
+            str(out), "--quiet", "--report", "--scenario", str(ROOT / "envs/highway-trial.toml"),
+            *sum((["--set", s] for s in SHORT), [])]
+    assert main(args) == 0
+    assert (out / "inputs" / "ppo-adas.zip").is_file() and (out / "inputs" / "ppo-adas.json").is_file()
+    meta = json.loads((out / "trials" / "adas-000" / "meta.json").read_text())
+    assert meta["status"] == "completed" and meta["driver"] == "ppo-adas"
+    assert meta["driver_params"]["observation"] == "adas"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["conditions"]["baseline"]["n"] == 1 and summary["conditions"]["adas"]["n"] == 1
+    assert "ppo-adas" in (out / "report.html").read_text()
