@@ -161,8 +161,21 @@ def cmd_study(args: argparse.Namespace) -> int:
     # bad driver files and configurations fail here, once, rather than in every trial
     from dt_highway.drivers import load_driver
 
-    load_driver(driver)
+    drv = load_driver(driver)
     load_config(scenario, overrides)
+    if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
+        import gymnasium as gym
+
+        from dt_highway.config import deep_merge
+        from dt_highway.study import condition_config
+
+        for condition in conditions:
+            cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
+            env = gym.make("dt-highway-v0", config=cfg.to_dict())
+            try:
+                drv.reset(env.unwrapped, 0)
+            finally:
+                env.close()
     specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides, parquet=args.parquet)
     if args.parquet:
         try:
@@ -497,18 +510,20 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix != ".zip":
         raise ConfigError(f"--out must name a .zip file, e.g. agents/{Path(args.config).stem}.zip (got {out})")
-    if out.exists() and not args.force:
-        raise ConfigError(f"{out} exists: pass --force to replace it")
+    for path in (out, sidecar_path(out)):
+        if path.exists() and not args.force:
+            raise ConfigError(f"{path} exists: pass --force to replace it (and {out.with_suffix('.d')})")
     meta = train(cfg, out, timesteps=args.timesteps, n_envs=args.n_envs, tensorboard_dir=args.tensorboard,
                  progress=not args.quiet)
     last = meta["evaluations"][-1] if meta["evaluations"] else None
-    print(f"trained {cfg.algorithm} ({cfg.observation}) for {meta['timesteps_done']} steps in "
+    print(f"trained {cfg.algorithm} ({cfg.observation}, {cfg.action}) for {meta['timesteps_done']} steps in "
           f"{meta['wall_time_s']:.0f} s ({meta['steps_per_s']} steps/s)" + (" - interrupted" if meta["interrupted"] else ""))
     if last:
         print(f"last evaluation ({cfg.eval_episodes} held-out episodes at {last['timesteps']} steps): "
-              f"mean return {last['mean_return']:.2f}, mean length {last['mean_length']:.0f} decisions")
+              f"mean return {last['mean_return']:.2f}, mean length {last['mean_length']:.0f} decisions, "
+              f"collision rate {last['collision_rate']:.2f}")
     print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), checkpoints and logs in {meta['checkpoints']}")
-    return 0
+    return 130 if meta["interrupted"] else 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:

@@ -138,12 +138,14 @@ class OverlayKinematics(FastKinematicObservation):
         self.features = self.base_features + self.OVERLAY_FEATURES
 
     def observe(self) -> np.ndarray:
+        # rows in sorted order while the marks are matched to them, shuffled after (if asked)
         features, self.features = self.features, self.base_features
+        order, self.order = self.order, "sorted"
         try:
             base = super().observe()
             rows = self.observed()
         finally:
-            self.features = features
+            self.features, self.order = features, order
         out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
         out[:, : base.shape[1]] = base
         adas = self.env.adas_output()
@@ -154,6 +156,8 @@ class OverlayKinematics(FastKinematicObservation):
             for r, v in enumerate(rows[1: base.shape[0]], start=1):
                 if vehicle_id(v) in marked:
                     out[r, -1] = 1.0
+        if self.order == "shuffled":
+            self.env.np_random.shuffle(out[1:])
         return out
 
 
@@ -402,6 +406,8 @@ class DTHighwayEnv(HighwayEnv):
                 self._swap_ego(self._autopilot_from(self.vehicle))
         self.sim_time_s = 0.0
         self._events = []
+        if hasattr(self.action_type, "reset"):  # an action with state (the assisted menu's desired speed)
+            self.action_type.reset()
         self._episode += 1
         self._frame, self._frame_key = None, None
         self._build_camera()

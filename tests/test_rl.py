@@ -84,9 +84,14 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
     (tmp_path / "foreign.zip").write_bytes(good.read_bytes())
     (tmp_path / "foreign.json").write_text('{"hello": 1}')
     (tmp_path / "broken.zip").write_bytes(b"not a zip")
-    shutil.copy(good.with_suffix(".json"), tmp_path / "broken.json")
+    meta = json.loads(good.with_suffix(".json").read_text())
+    (tmp_path / "other.zip").write_bytes(b"not a zip")
+    (tmp_path / "other.json").write_text(json.dumps(meta))  # names the shipped model's hash
+    meta.pop("model_sha256")
+    (tmp_path / "broken.json").write_text(json.dumps(meta))
     for name, words in (("missing.zip", "not found"), ("no-meta.zip", "not a dt-highway policy"),
-                        ("foreign.zip", "not the metadata"), ("broken.zip", "cannot load")):
+                        ("foreign.zip", "not the metadata"), ("other.zip", "another model file"),
+                        ("broken.zip", "cannot load")):
         with pytest.raises(ConfigError, match=words):
             load_driver(tmp_path / name)
     with pytest.raises(ConfigError, match="training config"):
@@ -97,6 +102,8 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
                         ({"kind": "rl", "observation": "radar"}, "observation"), ({"kind": "rl", "n_envs": 0}, "n_envs")):
         with pytest.raises(ConfigError, match=words):
             parse_train_config(tree)
+    with pytest.raises(ConfigError, match="accels_mps2"):
+        parse_train_config({"kind": "rl", "accels_mps2": [-20.0, 0.0]})  # refused here, not in a worker process
     cfg = tmp_path / "bad-hyper.toml"
     cfg.write_text('kind = "rl"\ntimesteps = 10\nset = ["highway.duration=4", "twin.preroll_s=1"]\n'
                    '[hyperparameters]\nnot_a_parameter = 1\n')
@@ -156,3 +163,76 @@ def test_a_policy_runs_a_study_in_both_conditions_and_the_report_covers_it(tmp_p
     summary = json.loads((out / "summary.json").read_text())
     assert summary["conditions"]["baseline"]["n"] == 1 and summary["conditions"]["adas"]["n"] == 1
     assert "ppo-adas" in (out / "report.html").read_text()
+
+
+def test_the_policy_sees_what_the_training_env_showed(tmp_path):
+    """PolicyDriver's observation of an env equals the training env's own observation, step by step."""
+    path = ROOT / "agents" / "ppo-adas.zip"
+    driver = load_policy(path)
+    tree = driver.config.env_config().to_dict()  # the training env: ADAS condition, OverlayKinematics, assisted menu
+    tree["highway"]["duration"] = 6
+    env = DTHighwayEnv(config=tree)
+    obs, info = env.reset(seed=5)
+    driver.reset(env, 5)
+    for _ in range(20):
+        assert np.array_equal(driver.observer.observe(), obs)
+        k = int(driver.model.predict(obs, deterministic=True)[0])
+        assert np.array_equal(driver.actions.driver_action(k), env.action_type.driver_action(k))
+        obs, _, term, trunc, info = env.step(k)
+        if term or trunc:
+            break
+
+
+def test_the_overlay_column_follows_the_marker_on_screen_not_the_id(monkeypatch):
+    """A marker whose box sits on car B but whose item names car A marks B's row: the column
+    is what a driver sees on the screen, never the id (or the true type) behind it."""
+    cfg = load_config(str(ROOT / "envs/highway-trial.toml"), [*SHORT, "camera.enabled=true", "fusion.enabled=true"],
+                      {"highway": {"observation": {"type": "OverlayKinematics", "vehicles_count": 7,
+                                                   "see_behind": True}, "action": {"type": "Driver"}}})
+    env = DTHighwayEnv(config=cfg.to_dict())
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    rows = env.observation_type.observed()
+    frame = env.camera_frame()
+    seen = [v for v in rows[1:] if v.dt_id in frame.vehicles and frame.vehicles[v.dt_id].visible_box is not None]
+    assert len(seen) >= 2
+    a, b = seen[0], seen[1]
+    fake = {"overlay": [{"vehicle_id": a.dt_id, "box": list(frame.vehicles[b.dt_id].visible_box),
+                         "label": "aggressive driver", "confidence": 0.9}]}
+    monkeypatch.setattr(env, "adas_output", lambda: fake)
+    obs = env.observation_type.observe()
+    marked = {rows[r].dt_id for r in range(1, len(rows)) if obs[r, -1] == 1.0}
+    assert marked == {b.dt_id}
+    monkeypatch.setattr(env, "adas_output", lambda: {"overlay": []})
+    assert not env.observation_type.observe()[:, -1].any()
+
+
+def test_vision_setting_trains_and_drives_in_both_conditions(tmp_path):
+    cfg = parse_train_config({"kind": "rl", "observation": "vision", "depth": True, "timesteps": 32, "n_envs": 1,
+                              "scenario": str(ROOT / "envs/highway-trial.toml"), "set": SHORT,
+                              "eval_every_steps": 32, "eval_episodes": 1,
+                              "hyperparameters": {"n_steps": 16, "batch_size": 16, "n_epochs": 1}})
+    out = tmp_path / "vision.zip"
+    meta = train(cfg, out, progress=False)
+    assert meta["env_config"]["camera"]["width_px"] == 128 and meta["evaluations"]
+    for condition in ("baseline", "adas"):  # the study's camera size: frames are resized for the policy
+        result = evaluate(str(out), 1, 0, str(ROOT / "envs/highway-trial.toml"), condition, tuple(SHORT))
+        assert result["mean_steps"] > 0
+
+
+def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, capsys):
+    from stable_baselines3 import PPO
+
+    def stop(self, *args, **kwargs):
+        self.num_timesteps = 64
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(PPO, "learn", stop)
+    cfg = tmp_path / "tiny.toml"
+    cfg.write_text(f'kind = "rl"\nscenario = "{ROOT / "envs/highway-trial.toml"}"\nset = {json.dumps(SHORT)}\n'
+                   'timesteps = 1000\nn_envs = 1\n')
+    out = tmp_path / "tiny.zip"
+    assert main(["train", "--config", str(cfg), "--out", str(out), "--quiet"]) == 130
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["interrupted"] is True and out.is_file()
+    assert isinstance(load_policy(out), PolicyDriver)  # the pair is consistent (hash checked)

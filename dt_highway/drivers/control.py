@@ -134,17 +134,35 @@ DEFAULT_DISCRETE_ACCELS_MPS2 = (-6.0, -3.0, -1.0, 0.0, 1.0, 2.0)
 class DiscreteDriverAction(DriverAction):
     """The ``Driver`` action as a finite menu, for value-based agents (DQN) and discrete PPO.
 
-    Action ``k < len(accels)``: keep the lane with acceleration ``accels[k]`` [m/s^2]; the last
-    two: one lane left, one lane right, with no acceleration. Each choice is the ``Driver``
-    action :meth:`driver_action` returns, so a policy trained on it drives anywhere a
-    ``Driver`` action is taken (studies, the keyboard window's replay...).
+    Raw pedals (``assist = false``): action ``k < len(accels)`` keeps the lane with
+    acceleration ``accels[k]`` [m/s^2]; the last two ask for one lane left, one lane right,
+    with no acceleration. Assisted (``assist = true``,
+    :class:`~dt_highway.drivers.assisted.AssistedMenu`): action ``k < len(speeds)`` sets the
+    desired speed, the last two change lane when it is safe, and the Intelligent Driver Model
+    keeps the gap. Either way each choice is the ``Driver`` action :meth:`driver_action`
+    returns, so a policy trained on it drives anywhere a ``Driver`` action is taken.
 
     :param env: the env
-    :param accels_mps2: the accelerations to choose from [m/s^2], within the Driver limits
+    :param accels_mps2: raw pedals: the accelerations to choose from [m/s^2], within the Driver limits
+    :param assist: the assisted menu instead of raw pedals
+    :param speeds_mps: assisted: the desired speeds to choose from [m/s]
     """
 
-    def __init__(self, env: Any, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, **kwargs: Any) -> None:
+    def __init__(self, env: Any, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
+                 speeds_mps: Any = None, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
+        if self.steering:
+            raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
+        self.assisted = None
+        if assist:
+            from dt_highway.drivers.assisted import DEFAULT_SPEEDS_MPS, AssistedMenu
+
+            try:
+                self.assisted = AssistedMenu(tuple(speeds_mps if speeds_mps is not None else DEFAULT_SPEEDS_MPS))
+            except TypeError:
+                raise ValueError(f"speeds_mps must be a list of speeds [m/s] (got {speeds_mps!r})") from None
+            self.menu: list[tuple[float, float]] = []
+            return
         try:
             accels = [float(a) for a in accels_mps2]
         except (TypeError, ValueError):
@@ -152,18 +170,24 @@ class DiscreteDriverAction(DriverAction):
         if not accels or not all(self.accel_min_mps2 <= a <= self.accel_max_mps2 for a in accels):
             raise ValueError(f"accels_mps2 must be a non-empty list within [{self.accel_min_mps2}, "
                              f"{self.accel_max_mps2}] m/s^2 (got {accels})")
-        if self.steering:
-            raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
         self.menu = [(a, 0.0) for a in accels] + [(0.0, -1.0), (0.0, 1.0)]
 
     def space(self) -> spaces.Discrete:
-        return spaces.Discrete(len(self.menu))
+        return spaces.Discrete(self.assisted.size if self.assisted is not None else len(self.menu))
+
+    def reset(self) -> None:
+        """Start an episode (the assisted menu's desired speed goes back to its middle value)."""
+        if self.assisted is not None:
+            self.assisted.reset()
 
     def driver_action(self, index: Any) -> np.ndarray:
-        """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index``."""
+        """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index`` now."""
         k = int(np.asarray(index).reshape(-1)[0])
-        if not 0 <= k < len(self.menu):
-            raise ValueError(f"a DiscreteDriver action is an integer in 0..{len(self.menu) - 1} (got {index!r})")
+        n = self.space().n
+        if not 0 <= k < n:
+            raise ValueError(f"a DiscreteDriver action is an integer in 0..{n - 1} (got {index!r})")
+        if self.assisted is not None:
+            return self.assisted.action(self.env, k)
         return np.array(self.menu[k], dtype=float)
 
     def act(self, action: Any) -> None:

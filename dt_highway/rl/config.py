@@ -22,8 +22,11 @@ Observation settings:
 * ``vision``: the ego camera's ``rgb`` image (and ``depth`` with ``depth = true``) for a CNN
   policy (stable-baselines3's ``MultiInputPolicy``); the camera is made small for it.
 
-Actions: the ``DiscreteDriver`` menu (:class:`~dt_highway.drivers.control.DiscreteDriverAction`):
-keep the lane with one of ``accels_mps2``, or ask for one lane left or right.
+Actions (``action``): the ``DiscreteDriver`` menu
+(:class:`~dt_highway.drivers.control.DiscreteDriverAction`): ``pedals``, keep the lane with
+one of ``accels_mps2`` or ask for one lane left or right; ``assisted``
+(:class:`~dt_highway.drivers.assisted.AssistedMenu`), choose one of ``speeds_mps`` as desired
+speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap.
 """
 
 from __future__ import annotations
@@ -32,10 +35,11 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from dt_highway.config import ConfigError, DTConfig, load_config
-from dt_highway.drivers.control import DEFAULT_DISCRETE_ACCELS_MPS2
+from dt_highway.drivers.assisted import DEFAULT_SPEEDS_MPS
+from dt_highway.drivers.control import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, DEFAULT_DISCRETE_ACCELS_MPS2
 
 OBSERVATIONS = ("kinematics", "adas", "vision")
 ALGORITHMS = ("PPO", "DQN")
@@ -59,14 +63,27 @@ class TrainConfig(BaseModel):
     seed: int = Field(0, ge=0, description="seed of the model and of the training envs")
     vehicles_count: int = Field(7, ge=2, le=30, description="kinematics/adas: observed vehicles, ego included [-]")
     see_behind: bool = Field(True, description="kinematics/adas: observe vehicles behind too")
+    action: Literal["pedals", "assisted"] = Field(
+        "pedals", description="pedals: choose accelerations; assisted: choose a desired speed or a lane, IDM keeps the gap"
+    )
     accels_mps2: list[float] = Field(default_factory=lambda: list(DEFAULT_DISCRETE_ACCELS_MPS2),
-                                     description="accelerations of the action menu [m/s^2]")
+                                     description="pedals: accelerations of the action menu [m/s^2]")
+    speeds_mps: list[float] = Field(default_factory=lambda: list(DEFAULT_SPEEDS_MPS),
+                                    description="assisted: desired speeds of the action menu [m/s]")
     eval_every_steps: int = Field(20_000, gt=0, description="evaluate on held-out seeds this often [steps]")
     eval_episodes: int = Field(4, ge=1, description="episodes per evaluation [-]")
     eval_seed: int = Field(100_000, ge=0, description="first seed of the evaluation episodes")
     checkpoint_every_steps: int = Field(50_000, gt=0, description="save a checkpoint this often [steps]")
     hyperparameters: dict[str, Any] = Field(default_factory=dict, description="keyword arguments of the algorithm")
     policy_kwargs: dict[str, Any] = Field(default_factory=dict, description="policy_kwargs of the algorithm")
+
+    @model_validator(mode="after")
+    def _menus(self) -> TrainConfig:
+        if not self.accels_mps2 or not all(ACCEL_MIN_MPS2 <= a <= ACCEL_MAX_MPS2 for a in self.accels_mps2):
+            raise ValueError(f"accels_mps2 must be a non-empty list within [{ACCEL_MIN_MPS2}, {ACCEL_MAX_MPS2}] m/s^2")
+        if not self.speeds_mps or not all(0 < v <= 45 for v in self.speeds_mps):
+            raise ValueError("speeds_mps must be a non-empty list of speeds in (0, 45] m/s")
+        return self
 
     def env_config(self, condition: str | None = None) -> DTConfig:
         """The env configuration of this policy: its scenario and overrides, its observation
@@ -92,6 +109,8 @@ class TrainConfig(BaseModel):
 
     def action_config(self) -> dict[str, Any]:
         """The ``highway.action`` table: the discrete menu over the Driver action."""
+        if self.action == "assisted":
+            return {"type": "DiscreteDriver", "assist": True, "speeds_mps": list(self.speeds_mps)}
         return {"type": "DiscreteDriver", "accels_mps2": list(self.accels_mps2)}
 
 

@@ -1,36 +1,50 @@
 """Train an RL driver with stable-baselines3 (``dt-highway train``).
 
 The envs are ``gym.make("dt_highway:dt-highway-v0", config=...)`` (the id form that
-``SubprocVecEnv`` children can import), each wrapped in ``Monitor``; evaluation runs on a
-separate env with held-out seeds every ``eval_every_steps``; checkpoints and a CSV log of
-stable-baselines3's training statistics go to ``<out>.d/``; TensorBoard logs optionally.
-Beside the model ``<out>.zip`` goes ``<out>.json``: the training configuration, the
-resolved env configuration, the package versions and the evaluations, which is what
+``SubprocVecEnv`` children can import), each wrapped in ``Monitor`` and given a new seed at
+every episode (a fresh driver population and twin, as a study trial gets): env ``i`` of
+``n`` plays seeds ``seed * 1_000_000 + i + k n``. Every ``eval_every_steps`` the policy drives
+``eval_episodes`` held-out episodes (seeds ``eval_seed ..``, the same ones each time), and
+the best one is kept. Checkpoints and a CSV log of stable-baselines3's statistics go to
+``<out>.d/``; TensorBoard logs optionally. Beside the model ``<out>.zip`` goes
+``<out>.json``: the training configuration, the resolved env configuration, the package
+versions, the evaluations and the model file's SHA-256, which is what
 :func:`~dt_highway.rl.policy.load_policy` reads to drive with it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
-import math
 import os
+import shutil
 import time
-import warnings
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
 from dt_highway.config import ConfigError
 from dt_highway.rl.config import TrainConfig
 
 ENV_ID = "dt_highway:dt-highway-v0"
+FORMAT = "dt-highway policy 1"
 
 
 def sidecar_path(model_path: str | Path) -> Path:
     """Where the metadata of a policy lives: ``agents/x.zip`` -> ``agents/x.json``."""
     return Path(model_path).with_suffix(".json")
+
+
+def sha256(path: str | Path) -> str:
+    """SHA-256 of a file, hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def versions() -> dict[str, str]:
@@ -46,14 +60,26 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _make_env(env_config: dict[str, Any], seed: int):  # noqa: ANN202 - a factory for the vec env
+class Reseed(gym.Wrapper):
+    """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
+    (vectorised envs pass a seed to the first reset only)."""
+
+    def __init__(self, env: gym.Env, first: int, stride: int = 1) -> None:
+        super().__init__(env)
+        self.next_seed, self.stride = first, stride
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        if seed is None:
+            seed = self.next_seed
+            self.next_seed += self.stride
+        return self.env.reset(seed=seed, options=options)
+
+
+def _make_env(env_config: dict[str, Any], first_seed: int, stride: int):  # noqa: ANN202 - a factory for the vec env
     def build() -> Any:
-        import gymnasium as gym
         from stable_baselines3.common.monitor import Monitor
 
-        env = gym.make(ENV_ID, config=env_config)
-        env.reset(seed=seed)
-        return Monitor(env)
+        return Monitor(Reseed(gym.make(ENV_ID, config=env_config), first_seed, stride))
 
     return build
 
@@ -62,7 +88,7 @@ def _policy_name(cfg: TrainConfig) -> str:
     return "MultiInputPolicy" if cfg.observation == "vision" else "MlpPolicy"
 
 
-def build_model(cfg: TrainConfig, env: Any, tensorboard_dir: str | None = None) -> Any:
+def build_model(cfg: TrainConfig, env: Any) -> Any:
     """The stable-baselines3 model of a training configuration.
 
     :raises ConfigError: on hyperparameters the algorithm does not take
@@ -74,105 +100,61 @@ def build_model(cfg: TrainConfig, env: Any, tensorboard_dir: str | None = None) 
     if cfg.policy_kwargs:
         kwargs["policy_kwargs"] = dict(cfg.policy_kwargs)
     try:
-        return algo(_policy_name(cfg), env, seed=cfg.seed, device="cpu", verbose=0, tensorboard_log=tensorboard_dir,
-                    **kwargs)
+        return algo(_policy_name(cfg), env, seed=cfg.seed, device="cpu", verbose=0, **kwargs)
     except (TypeError, ValueError, AssertionError) as err:
         raise ConfigError(f"{cfg.algorithm} does not accept these hyperparameters or policy_kwargs: {err}") from None
 
 
-def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_envs: int | None = None,
-          tensorboard_dir: str | None = None, progress: bool = True) -> dict[str, Any]:
-    """Train a policy and save it with its metadata.
+class HeldOutEval(BaseCallback):
+    """Every ``every`` steps: ``episodes`` deterministic episodes on seeds ``seed ..``; keeps
+    the best model (mean return) as ``<dir>/best_model.zip``.
 
-    :param cfg: training configuration
-    :param out: model file to write (``.zip``)
-    :param timesteps: override of ``cfg.timesteps``
-    :param n_envs: override of ``cfg.n_envs``
-    :param tensorboard_dir: write TensorBoard logs there (needs the ``tensorboard`` package)
-    :param progress: show a progress bar
-    :return: the metadata written beside the model
-    :raises ConfigError: on a bad configuration, output path or missing TensorBoard
+    :param env_config: the env configuration
+    :param every: period [env steps]
+    :param episodes: episodes per evaluation
+    :param seed: first seed
+    :param directory: where the best model goes
     """
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-    out = Path(out)
-    if out.suffix != ".zip":
-        raise ConfigError(f"--out must name a .zip file (got {out})")
-    if tensorboard_dir is not None:
-        try:
-            import tensorboard  # noqa: F401
-        except ImportError:
-            raise ConfigError("--tensorboard needs the tensorboard package: pip install 'dt-highway[tensorboard]'") from None
-    if timesteps is not None:
-        cfg = cfg.model_copy(update={"timesteps": int(timesteps)})
-    if n_envs is not None:
-        cfg = cfg.model_copy(update={"n_envs": int(n_envs)})
-    if cfg.timesteps <= 0 or not 1 <= cfg.n_envs <= 64:
-        raise ConfigError(f"timesteps must be > 0 and n_envs in 1..64 (got {cfg.timesteps}, {cfg.n_envs})")
-    env_cfg = cfg.env_config()  # ConfigError on a bad scenario or override, before any process starts
-    if cfg.observation != "vision":
-        import torch
+    def __init__(self, env_config: dict[str, Any], every: int, episodes: int, seed: int, directory: Path) -> None:
+        super().__init__()
+        self.env = gym.make(ENV_ID, config=env_config)
+        self.every, self.episodes, self.seed, self.directory = every, episodes, seed, directory
+        self.results: list[dict[str, Any]] = []
+        self.best = -np.inf
+        self._next = every
 
-        torch.set_num_threads(1)  # a small MLP: one thread is fastest, and leaves the other cores to the envs
-    env_dict = env_cfg.to_dict()
-    work = out.with_suffix(".d")
-    work.mkdir(parents=True, exist_ok=True)
-    factories = [_make_env(env_dict, cfg.seed + i) for i in range(cfg.n_envs)]
-    venv = SubprocVecEnv(factories, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(factories)
-    eval_env = DummyVecEnv([_make_env(env_dict, cfg.eval_seed)])
-    try:
-        venv.seed(cfg.seed)
-        eval_env.seed(cfg.eval_seed)
-        model = build_model(cfg, venv, tensorboard_dir)
-        model.set_logger(configure(str(work), ["csv"] + (["tensorboard"] if tensorboard_dir else [])))
-        per_env = max(1, cfg.eval_every_steps // cfg.n_envs)
-        evaluator = EvalCallback(eval_env, n_eval_episodes=cfg.eval_episodes, eval_freq=per_env,
-                                 log_path=str(work), best_model_save_path=str(work), deterministic=True, verbose=0)
-        callbacks = [evaluator, CheckpointCallback(max(1, cfg.checkpoint_every_steps // cfg.n_envs), str(work),
-                                                   name_prefix="checkpoint")]
-        if progress:
-            callbacks.append(_Progress(cfg.timesteps))
-        t0 = time.perf_counter()
-        interrupted = False
-        try:
-            with warnings.catch_warnings():  # subprocess training envs, an in-process evaluation env: intended
-                warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
-                model.learn(cfg.timesteps, callback=CallbackList(callbacks))
-        except KeyboardInterrupt:
-            interrupted = True  # keep what was learned: saved below, marked as interrupted
-        wall = time.perf_counter() - t0
-        tmp = out.with_name(out.stem + ".tmp.zip")
-        model.save(tmp)
-        os.replace(tmp, out)
-    finally:
-        venv.close()
-        eval_env.close()
-    evals = []
-    if evaluator.evaluations_timesteps:
-        for t, r, n in zip(evaluator.evaluations_timesteps, evaluator.evaluations_results,
-                           evaluator.evaluations_length):
-            evals.append({"timesteps": int(t), "mean_return": float(np.mean(r)), "mean_length": float(np.mean(n))})
-    meta = {
-        "format": "dt-highway policy 1",
-        "algorithm": cfg.algorithm,
-        "observation": cfg.observation,
-        "train_config": cfg.model_dump(),
-        "env_config": env_dict,
-        "versions": versions(),
-        "timesteps_done": int(model.num_timesteps),
-        "interrupted": interrupted,
-        "wall_time_s": round(wall, 1),
-        "steps_per_s": round(model.num_timesteps / wall, 1) if wall > 0 else math.nan,
-        "evaluations": evals,
-        "checkpoints": str(work),
-    }
-    sidecar = sidecar_path(out)
-    tmp = sidecar.with_name(sidecar.name + ".tmp")
-    tmp.write_text(json.dumps(meta, indent=2, default=str), encoding="utf-8")
-    os.replace(tmp, sidecar)
-    return meta
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._next += self.every
+            self.run()
+        return True
+
+    def run(self) -> dict[str, Any]:
+        """One evaluation now; :return: its summary (also appended to ``results``)."""
+        returns, lengths, crashes = [], [], 0
+        for k in range(self.episodes):
+            obs, _ = self.env.reset(seed=self.seed + k)
+            total, n = 0.0, 0
+            while True:
+                action, _ = self.model.predict(obs, deterministic=True)
+                obs, reward, terminated, truncated, _ = self.env.step(action)
+                total += float(reward)
+                n += 1
+                if terminated or truncated:
+                    break
+            returns.append(total)
+            lengths.append(n)
+            crashes += int(self.env.unwrapped.vehicle.crashed)
+        summary = {"timesteps": int(self.num_timesteps), "mean_return": float(np.mean(returns)),
+                   "mean_length": float(np.mean(lengths)), "collision_rate": crashes / self.episodes}
+        self.results.append(summary)
+        self.logger.record("eval/mean_return", summary["mean_return"])
+        self.logger.record("eval/collision_rate", summary["collision_rate"])
+        if summary["mean_return"] > self.best:
+            self.best = summary["mean_return"]
+            self.model.save(self.directory / "best_model.zip")
+        return summary
 
 
 class _Progress(BaseCallback):
@@ -196,3 +178,105 @@ class _Progress(BaseCallback):
 
     def _on_training_end(self) -> None:
         self.bar.close()
+
+
+def _close(venv: Any) -> None:
+    """Close a vec env whose workers may already be gone (Ctrl-C reaches them too)."""
+    try:
+        venv.close()
+    except (EOFError, BrokenPipeError, ConnectionError, OSError):
+        pass
+
+
+def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_envs: int | None = None,
+          tensorboard_dir: str | None = None, progress: bool = True) -> dict[str, Any]:
+    """Train a policy and save it with its metadata.
+
+    :param cfg: training configuration
+    :param out: model file to write (``.zip``); ``<out>.json`` and ``<out>.d/`` go beside it
+    :param timesteps: override of ``cfg.timesteps``
+    :param n_envs: override of ``cfg.n_envs``
+    :param tensorboard_dir: also write TensorBoard logs there (needs the ``tensorboard`` package)
+    :param progress: show a progress bar
+    :return: the metadata written beside the model (``interrupted`` if stopped by Ctrl-C)
+    :raises ConfigError: on a bad configuration, output path or missing TensorBoard
+    """
+    from stable_baselines3.common.logger import Logger, make_output_format
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    out = Path(out)
+    if out.suffix != ".zip":
+        raise ConfigError(f"--out must name a .zip file (got {out})")
+    if tensorboard_dir is not None:
+        try:
+            import tensorboard  # noqa: F401
+        except ImportError:
+            raise ConfigError("--tensorboard needs the tensorboard package: pip install 'dt-highway[tensorboard]'") from None
+    updates = {k: int(v) for k, v in (("timesteps", timesteps), ("n_envs", n_envs)) if v is not None}
+    if updates:
+        cfg = TrainConfig.model_validate({**cfg.model_dump(), **updates})
+    env_dict = cfg.env_config().to_dict()  # ConfigError on a bad scenario or override
+    # the evaluation env is built here, in this process: a setting the env refuses is a
+    # one-line error now, not a traceback in a worker process
+    try:
+        evaluator = HeldOutEval(env_dict, cfg.eval_every_steps, cfg.eval_episodes, cfg.eval_seed, out.with_suffix(".d"))
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    if cfg.observation != "vision":
+        import torch
+
+        torch.set_num_threads(1)  # a small MLP: one thread is fastest, and leaves the other cores to the envs
+    work = out.with_suffix(".d")
+    if work.exists():
+        shutil.rmtree(work)  # checkpoints of an earlier run of this file: not this run's
+    work.mkdir(parents=True)
+    factories = [_make_env(env_dict, cfg.seed * 1_000_000 + i, cfg.n_envs) for i in range(cfg.n_envs)]
+    venv = SubprocVecEnv(factories, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(factories)
+    interrupted = False
+    try:
+        model = build_model(cfg, venv)
+        formats = [make_output_format("csv", str(work))]
+        if tensorboard_dir is not None:
+            formats.append(make_output_format("tensorboard", tensorboard_dir))
+        model.set_logger(Logger(str(work), formats))
+        callbacks = [evaluator, CheckpointCallback(max(1, cfg.checkpoint_every_steps // cfg.n_envs), str(work),
+                                                   name_prefix="checkpoint")]
+        if progress:
+            callbacks.append(_Progress(cfg.timesteps))
+        t0 = time.perf_counter()
+        try:
+            model.learn(cfg.timesteps, callback=CallbackList(callbacks))
+        except KeyboardInterrupt:
+            interrupted = True  # keep what was learned: saved below, marked as interrupted
+        wall = time.perf_counter() - t0
+    finally:
+        _close(venv)
+    if not evaluator.results or evaluator.results[-1]["timesteps"] != model.num_timesteps:
+        if not interrupted:
+            evaluator.run()  # the final policy's held-out numbers
+    evaluator.env.close()
+    # model first (as a temporary), then the metadata naming its hash, then both in place
+    tmp_model = out.with_name(out.stem + ".tmp.zip")
+    model.save(tmp_model)
+    meta = {
+        "format": FORMAT,
+        "algorithm": cfg.algorithm,
+        "observation": cfg.observation,
+        "action": cfg.action,
+        "train_config": cfg.model_dump(),
+        "env_config": env_dict,
+        "versions": versions(),
+        "timesteps_done": int(model.num_timesteps),
+        "interrupted": interrupted,
+        "wall_time_s": round(wall, 1),
+        "steps_per_s": round(model.num_timesteps / wall, 1) if wall > 0 else None,
+        "evaluations": evaluator.results,
+        "checkpoints": str(work),
+        "model_sha256": sha256(tmp_model),
+    }
+    sidecar = sidecar_path(out)
+    tmp_meta = sidecar.with_name(sidecar.name + ".tmp")
+    tmp_meta.write_text(json.dumps(meta, indent=2), encoding="utf-8")
+    os.replace(tmp_model, out)
+    os.replace(tmp_meta, sidecar)
+    return meta
