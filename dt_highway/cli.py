@@ -530,10 +530,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
     from dt_highway.rl.evaluate import evaluate
 
+    from dt_highway.drivers import load_driver
+
     scenario = args.scenario or EVAL_SCENARIO
-    with _progress(args.episodes, "evaluate", args.quiet, unit="episode") as bar:
+    driver = load_driver(args.driver)  # mistakes in the driver or the scenario: one line, before the bar
+    load_config(scenario, args.overrides)
+    bars: list[Any] = []  # the bar appears once the env accepted the driver (else the error stands alone)
+
+    def progress(n: int) -> None:
+        if not bars:
+            bars.append(_progress(args.episodes, "evaluate", args.quiet, unit="episode"))
+        bars[0].update(n)
+
+    try:
         result = evaluate(args.driver, args.episodes, args.seed, scenario, args.condition, tuple(args.overrides),
-                          progress=bar.update)
+                          progress=progress, driver=driver)
+    finally:
+        for bar in bars:
+            bar.close()
     if args.out_json:
         Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out_json).write_text(dump_json(result) + "\n")

@@ -62,17 +62,18 @@ def test_the_shipped_policies_load_and_drive():
 
 
 def test_a_policy_from_another_observation_space_is_refused(tmp_path, capsys):
-    src = ROOT / "agents" / "ppo-baseline.zip"
+    src = ROOT / "agents" / "ppo-adas.zip"  # its network takes 7 x 6 (the marks' column)
     wrong = tmp_path / "wrong.zip"
     shutil.copy(src, wrong)
     meta = json.loads(src.with_suffix(".json").read_text())
-    meta["train_config"]["vehicles_count"] = 9  # says it sees 9 vehicles: the network takes 7
+    meta["train_config"]["observation"] = "kinematics"  # metadata of a 7 x 5 observation
+    meta["env_config"]["highway"]["observation"]["type"] = "Kinematics"
     wrong.with_suffix(".json").write_text(json.dumps(meta))
     env = DTHighwayEnv(config=load_config(str(ROOT / "envs/highway-trial.toml"), SHORT).to_dict())
     env.reset(seed=0)
     with pytest.raises(ConfigError, match="trained on observations"):
         load_policy(wrong).reset(env, 0)
-    code = main(["evaluate", "--driver", str(wrong), "--episodes", "1", "--quiet", "--scenario",
+    code = main(["evaluate", "--driver", str(wrong), "--episodes", "1", "--scenario",
                  str(ROOT / "envs/highway-trial.toml"), *sum((["--set", s] for s in SHORT), [])])
     err = capsys.readouterr().err
     assert code == 2 and "trained on observations" in err and len(err.strip().splitlines()) == 1

@@ -49,16 +49,17 @@ def _mean(values: list[float]) -> float:
 
 def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = "envs/highway-trial.toml",
              condition: str = "adas", overrides: tuple[str, ...] = (),
-             progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+             progress: Callable[[int], None] | None = None, driver: Any = None) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) of a driver.
 
     :param driver_path: ``agents/<name>.zip`` or ``agents/<driver>.toml``
+    :param driver: the driver already loaded from ``driver_path`` (else it is loaded here)
     :param episodes: number of episodes
     :param seed: first seed
     :param scenario: scenario file
     :param condition: ``baseline`` (no overlay) or ``adas``
     :param overrides: ``dotted.key=value`` overrides
-    :param progress: called with 1 after each episode
+    :param progress: called with 0 when the checks are done and the episodes start, then with 1 after each
     :return: the means over episodes and the episodes themselves
     :raises ConfigError: on a bad driver, scenario, condition or count
     """
@@ -69,11 +70,15 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
 
     if episodes < 1:
         raise ConfigError(f"--episodes must be >= 1 (got {episodes})")
-    driver = load_driver(driver_path)
+    driver = driver if driver is not None else load_driver(driver_path)
     cfg = load_config(scenario, list(overrides), deep_merge(condition_config(condition), driver.config_overrides()))
     env = gym.make("dt-highway-v0", config=cfg.to_dict())
     rows = []
     try:
+        if hasattr(driver, "model"):
+            driver.reset(env.unwrapped, seed)  # a policy that cannot drive this env says so before any episode
+        if progress is not None:
+            progress(0)  # checks done: the episodes start
         for k in range(episodes):
             rows.append(run_episode(driver, env, seed + k))
             if progress is not None:
