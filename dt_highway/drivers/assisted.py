@@ -12,7 +12,8 @@ cruise control makes them:
 
 Every decision the acceleration is the Intelligent Driver Model's (Treiber, Hennecke &
 Helbing 2000) toward the leader in the ego's lane (and in the target lane during a lane
-change), with the chosen desired speed. A lane change is taken only if MOBIL's safety
+change), with the chosen desired speed; a car ahead whose body already reaches into the
+ego's lane (one cutting in) counts as the leader from then on. A lane change is taken only if MOBIL's safety
 criterion holds (Kesting, Treiber & Helbing 2007): the new follower would not have to brake
 harder than ``safe_decel_mps2``, nor would the ego behind its new leader. The result is the
 ``Driver`` action ``[acceleration, lane]`` like every driver's.
@@ -80,13 +81,41 @@ class AssistedMenu:
             off = -1 if k == len(self.speeds_mps) else 1
             if 0 <= s.lane + off < s.n_lanes and self._safe(s, off):
                 lane = off
-        lead = s.ahead[0]
-        accel = idm_accel(s.speed_mps, lead.gap_m, s.speed_mps - lead.speed_mps, self.idm, self.desired_mps)
+        lead_gap, lead_speed = s.ahead[0].gap_m, s.ahead[0].speed_mps
+        cutter = self._entering(env)
+        if cutter is not None and cutter[0] < lead_gap:  # a car coming into the lane ahead counts as the leader
+            lead_gap, lead_speed = cutter
+        accel = idm_accel(s.speed_mps, lead_gap, s.speed_mps - lead_speed, self.idm, self.desired_mps)
         if lane:
             new_lead = s.ahead[lane]
             accel = min(accel, idm_accel(s.speed_mps, new_lead.gap_m, s.speed_mps - new_lead.speed_mps, self.idm,
                                          self.desired_mps))
         return np.array([float(np.clip(accel, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2)), float(lane)])
+
+    ENTERING_RANGE_M = 80.0
+    """How far ahead a car entering the ego's lane is looked for [m]"""
+
+    def _entering(self, env: Any) -> tuple[float, float] | None:
+        """The nearest car ahead whose body already reaches into the ego's lane while its centre
+        is still in the next one (a car changing into the lane, as a driver sees it drift in):
+        ``(bumper gap [m], speed [m/s])``, or ``None``."""
+        ego = env.vehicle
+        lane = env.road.network.get_lane(ego.lane_index)
+        ex, ey = float(ego.position[0]), float(ego.position[1])
+        centre_y = float(lane.position(ex, 0.0)[1])
+        best: tuple[float, float] | None = None
+        for v in env.road.vehicles:
+            if v is ego:
+                continue
+            dx = float(v.position[0]) - ex
+            if not 0.0 < dx < self.ENTERING_RANGE_M:
+                continue
+            if abs(float(v.position[1]) - centre_y) >= lane.width_at(0.0) / 2 + v.WIDTH / 2:
+                continue  # not in the lane, not even in part
+            gap = dx - (v.LENGTH + ego.LENGTH) / 2
+            if best is None or gap < best[0]:
+                best = (gap, float(v.speed))
+        return best
 
     def _safe(self, s: Any, off: int) -> bool:
         """MOBIL's safety criterion for a change into lane offset ``off``."""
