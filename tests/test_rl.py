@@ -260,3 +260,18 @@ def test_the_assisted_menu_brakes_for_a_car_coming_into_the_lane():
         accel[offset] = menu.action(env, 3)[0]
     assert accel[4.0] > 0 > accel[2.5] and accel[2.5] == accel[0.0]
     assert menu.action(env, 3)[1] == 0.0
+
+
+def test_dqn_on_images_gets_a_replay_buffer_that_fits_in_memory():
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from dt_highway.rl.train import VISION_DQN_BUFFER, _make_env, build_model
+
+    for hyper, size in (({}, VISION_DQN_BUFFER), ({"buffer_size": 500}, 500)):
+        cfg = parse_train_config({"kind": "rl", "algorithm": "DQN", "observation": "vision", "set": SHORT,
+                                  "scenario": str(ROOT / "envs/highway-trial.toml"), "hyperparameters": hyper})
+        env = DummyVecEnv([_make_env(cfg.env_config().to_dict(), 0, 1)])
+        try:
+            assert build_model(cfg, env).buffer_size == size
+        finally:
+            env.close()

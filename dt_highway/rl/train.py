@@ -30,6 +30,8 @@ from dt_highway.config import ConfigError
 from dt_highway.rl.config import TrainConfig
 
 ENV_ID = "dt_highway:dt-highway-v0"
+VISION_DQN_BUFFER = 20_000
+"""DQN's replay buffer with image observations unless ``buffer_size`` is given [transitions] (~1.5 GB)"""
 FORMAT = "dt-highway policy 1"
 
 
@@ -97,6 +99,9 @@ def build_model(cfg: TrainConfig, env: Any) -> Any:
 
     algo = getattr(sb3, cfg.algorithm)
     kwargs = dict(cfg.hyperparameters)
+    if cfg.algorithm == "DQN" and cfg.observation == "vision":
+        # SB3's default replay buffer (a million transitions) would hold ~74 GB of 128x72 RGB-D pairs
+        kwargs.setdefault("buffer_size", VISION_DQN_BUFFER)
     if cfg.policy_kwargs:
         kwargs["policy_kwargs"] = dict(cfg.policy_kwargs)
     try:
