@@ -525,6 +525,22 @@ def read_scenario(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"scenario file '{p}' cannot be read: {exc.strerror}") from None
 
 
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """Read a TOML file a user names (a driver file, a training file).
+
+    :param path: the file
+    :param what: what it is, for the message (``"driver file"``)
+    :raises ConfigError: one line, if it is missing, unreadable or not valid TOML
+    """
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{what} not found: {p}") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise ConfigError(f"cannot read {what} {p}: {err}") from None
+
+
 def parse_override(text: str) -> dict[str, Any]:
     """Turn ``"a.b.c=value"`` into ``{"a": {"b": {"c": value}}}``.
 

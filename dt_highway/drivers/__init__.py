@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from pathlib import Path
 from typing import Any
 
-from dt_highway.config import ConfigError
+from dt_highway.config import ConfigError, read_toml
 from dt_highway.drivers.control import DrivenVehicle, DriverAction
 from dt_highway.drivers.scripted import (
     Driver,
@@ -112,12 +111,7 @@ def load_driver(path: str | Path) -> Driver:
         from dt_highway.rl.policy import load_policy
 
         return load_policy(p)
-    try:
-        tree = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"driver file not found: {p}") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        raise ConfigError(f"cannot read driver file {p}: {err}") from None
+    tree = read_toml(p, "driver file")
     try:
         return make_driver(tree, p.stem)
     except ConfigError as err:

@@ -31,13 +31,12 @@ speed or a lane change (taken when safe), the Intelligent Driver Model keeping t
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.config import ConfigError, DTConfig, load_config, read_toml
 from dt_highway.drivers.assisted import DEFAULT_SPEEDS_MPS
 from dt_highway.drivers.control import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, DEFAULT_DISCRETE_ACCELS_MPS2
 
@@ -133,12 +132,7 @@ def load_train_config(path: str | Path) -> TrainConfig:
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
     p = Path(path)
-    try:
-        tree = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"training config not found: {p}") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
-        raise ConfigError(f"cannot read training config {p}: {err}") from None
+    tree = read_toml(p, "training config")
     if tree.get("kind") != "rl":
         raise ConfigError(f"{p}: a training config needs kind = \"rl\" (got {tree.get('kind')!r}; "
                           f"scripted drivers are not trained)")
