@@ -101,7 +101,7 @@ class AssistedMenu:
         ``(bumper gap [m], speed [m/s])``, or ``None``."""
         ego = env.vehicle
         lane = env.road.network.get_lane(ego.lane_index)
-        ex, ey = float(ego.position[0]), float(ego.position[1])
+        ex = float(ego.position[0])
         centre_y = float(lane.position(ex, 0.0)[1])
         best: tuple[float, float] | None = None
         for v in env.road.vehicles:
