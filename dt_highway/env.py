@@ -58,7 +58,41 @@ from dt_highway.twin.uplink import Uplink, VehicleState
 ENV_ID = "dt-highway-v0"
 
 
-class TwinTaggedKinematics(FastKinematicObservation):
+class _KinematicsPlus(FastKinematicObservation):
+    """highway-env's Kinematics observation plus the columns ``EXTRA_FEATURES``, filled by
+    :meth:`fill` from what the ego received. The extra columns are matched to the rows in
+    sorted order; the rows are shuffled afterwards if the observation asks for it."""
+
+    EXTRA_FEATURES: list[str] = []
+
+    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        self.base_features = list(self.features)
+        self.features = self.base_features + self.EXTRA_FEATURES
+
+    def observe(self) -> np.ndarray:
+        if not self.env.road:
+            return np.zeros((self.vehicles_count, len(self.features)), dtype=np.float32)
+        features, self.features = self.features, self.base_features
+        order, self.order = self.order, "sorted"
+        try:
+            base = super().observe()
+            rows = self.observed()
+        finally:
+            self.features, self.order = features, order
+        out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
+        out[:, : base.shape[1]] = base
+        self.fill(out[:, base.shape[1]:], rows[: base.shape[0]])
+        if self.order == "shuffled":
+            self.env.np_random.shuffle(out[1:])
+        return out
+
+    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
+        """Write the extra columns (``extra``, one row per observed object, the ego first) in place."""
+        raise NotImplementedError
+
+
+class TwinTaggedKinematics(_KinematicsPlus):
     """highway-env's Kinematics observation plus two columns from the delivered twin view.
 
     ``twin_known`` is 1 when an observed vehicle was associated with a vehicle of the twin's
@@ -69,57 +103,30 @@ class TwinTaggedKinematics(FastKinematicObservation):
     ``GATE_M``. Ground truth is never read.
     """
 
-    TWIN_FEATURES = ["twin_known", "twin_aggressive"]
+    EXTRA_FEATURES = ["twin_known", "twin_aggressive"]
     GATE_M = 6.0
     """Largest distance between an observed vehicle and a twin position to associate them [m]"""
 
-    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
-        super().__init__(env, **kwargs)
-        self.base_features = list(self.features)
-        self.features = self.base_features + self.TWIN_FEATURES
-
-    def space(self) -> spaces.Space:
-        return spaces.Box(shape=(self.vehicles_count, len(self.features)), low=-np.inf, high=np.inf, dtype=np.float32)
-
-    def observe(self) -> np.ndarray:
-        out = np.zeros((self.vehicles_count, len(self.features)), dtype=np.float32)
-        if not self.env.road:
-            return out
-        order, self.order = self.order, "sorted"
-        features, self.features = self.features, self.base_features
-        try:
-            base = super().observe()
-        finally:
-            self.order, self.features = order, features
-        out[:, : base.shape[1]] = base
-        observed = [self.observer_vehicle] + self.env.road.close_objects_to(
-            self.observer_vehicle, self.env.PERCEPTION_DISTANCE, count=self.vehicles_count - 1,
-            see_behind=self.see_behind, sort=True, vehicles_only=not self.include_obstacles,
-        )[-self.vehicles_count + 1:]
+    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
         view: TwinView | None = self.env.twin_view
-        if view is not None and view.vehicles and len(observed) > 1:
-            now = self.env.twin_now_s
-            pred = np.array([
-                [v.x_m + v.speed_mps * math.cos(v.heading_rad) * (now - v.t_fix_s),
-                 v.y_m + v.speed_mps * math.sin(v.heading_rad) * (now - v.t_fix_s)]
-                for v in view.vehicles
-            ])
-            pos = np.array([o.position for o in observed[1:]])
-            cost = np.linalg.norm(pos[:, None, :] - pred[None, :, :], axis=2)
-            rows, cols = linear_sum_assignment(cost)
-            k = len(self.base_features)
-            for r, c in zip(rows, cols):
-                if cost[r, c] <= self.GATE_M:
-                    tv = view.vehicles[c]
-                    p_aggr = tv.confidence if tv.tag == AGGRESSIVE else 1.0 - tv.confidence
-                    out[r + 1, k] = 1.0
-                    out[r + 1, k + 1] = p_aggr
-        if self.order == "shuffled":
-            self.env.np_random.shuffle(out[1:])
-        return out
+        if view is None or not view.vehicles or len(rows) < 2:
+            return
+        now = self.env.twin_now_s
+        pred = np.array([
+            [v.x_m + v.speed_mps * math.cos(v.heading_rad) * (now - v.t_fix_s),
+             v.y_m + v.speed_mps * math.sin(v.heading_rad) * (now - v.t_fix_s)]
+            for v in view.vehicles
+        ])
+        pos = np.array([o.position for o in rows[1:]])
+        cost = np.linalg.norm(pos[:, None, :] - pred[None, :, :], axis=2)
+        for r, c in zip(*linear_sum_assignment(cost)):
+            if cost[r, c] <= self.GATE_M:
+                tv = view.vehicles[c]
+                extra[r + 1, 0] = 1.0
+                extra[r + 1, 1] = tv.confidence if tv.tag == AGGRESSIVE else 1.0 - tv.confidence
 
 
-class OverlayKinematics(FastKinematicObservation):
+class OverlayKinematics(_KinematicsPlus):
     """highway-env's Kinematics observation plus a column ``marked``: 1 when the ADAS overlay
     shows an "aggressive driver" marker on that vehicle, as the driver sees it on the screen.
 
@@ -130,35 +137,18 @@ class OverlayKinematics(FastKinematicObservation):
     reaches the observation only through the fusion and the overlay, never from ground truth.
     """
 
-    OVERLAY_FEATURES = ["marked"]
+    EXTRA_FEATURES = ["marked"]
 
-    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
-        super().__init__(env, **kwargs)
-        self.base_features = list(self.features)
-        self.features = self.base_features + self.OVERLAY_FEATURES
-
-    def observe(self) -> np.ndarray:
-        # rows in sorted order while the marks are matched to them, shuffled after (if asked)
-        features, self.features = self.features, self.base_features
-        order, self.order = self.order, "sorted"
-        try:
-            base = super().observe()
-            rows = self.observed()
-        finally:
-            self.features, self.order = features, order
-        out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
-        out[:, : base.shape[1]] = base
+    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
         adas = self.env.adas_output()
-        if adas is not None and adas["overlay"]:
-            from dt_highway.drivers.scripted import cars_under_marks
+        if adas is None or not adas["overlay"]:
+            return
+        from dt_highway.drivers.scripted import cars_under_marks
 
-            marked = cars_under_marks(self.env, adas["overlay"])
-            for r, v in enumerate(rows[1: base.shape[0]], start=1):
-                if vehicle_id(v) in marked:
-                    out[r, -1] = 1.0
-        if self.order == "shuffled":
-            self.env.np_random.shuffle(out[1:])
-        return out
+        marked = cars_under_marks(self.env, adas["overlay"])
+        for r, v in enumerate(rows[1:], start=1):
+            if vehicle_id(v) in marked:
+                extra[r, 0] = 1.0
 
 
 class CameraObservation(ObservationType):
@@ -285,21 +275,13 @@ class DTHighwayEnv(HighwayEnv):
                     f"highway.observation for type 'Camera' takes only 'depth' (got {sorted(obs_cfg)})"
                 ) from None
         elif obs_cfg.get("type") == "OverlayKinematics":
-            obs_cfg.pop("type")
-            try:
-                self.observation_type = OverlayKinematics(self, **obs_cfg)
-            except (TypeError, ValueError) as err:
-                raise ConfigError(f"highway.observation for type 'OverlayKinematics': {err}") from None
+            self.observation_type = self._kinematics(OverlayKinematics, obs_cfg)
         elif self.dt_config.twin.in_observation:
-            if obs_cfg.pop("type", "Kinematics") != "Kinematics":
+            if obs_cfg.get("type", "Kinematics") != "Kinematics":
                 raise ConfigError("twin.in_observation needs highway.observation.type = 'Kinematics'")
-            self.observation_type = TwinTaggedKinematics(self, **obs_cfg)
+            self.observation_type = self._kinematics(TwinTaggedKinematics, obs_cfg)
         elif obs_cfg.get("type") == "Kinematics" and self.dt_config.traffic.fast_road:
-            obs_cfg.pop("type")
-            try:
-                self.observation_type = FastKinematicObservation(self, **obs_cfg)
-            except (TypeError, ValueError) as err:
-                raise ConfigError(f"highway.observation for type 'Kinematics': {err}") from None
+            self.observation_type = self._kinematics(FastKinematicObservation, obs_cfg)
         else:
             self.observation_type = observation_factory(self, self.config["observation"])
         act_cfg = dict(self.config["action"])
@@ -313,6 +295,17 @@ class DTHighwayEnv(HighwayEnv):
             self.action_type = action_factory(self, self.config["action"])
         self.observation_space = self.observation_type.space()
         self.action_space = self.action_type.space()
+
+    def _kinematics(self, cls: type, obs_cfg: dict[str, Any]) -> FastKinematicObservation:
+        """A Kinematics observation of ours from the ``highway.observation`` table.
+
+        :raises ConfigError: on options it does not take
+        """
+        kwargs = {k: v for k, v in obs_cfg.items() if k != "type"}
+        try:
+            return cls(self, **kwargs)
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"highway.observation for type '{obs_cfg.get('type', 'Kinematics')}': {err}") from None
 
     # ------------------------------------------------------------------ reset
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
