@@ -8,18 +8,13 @@ connected-vehicle ADAS.
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
 import gymnasium as gym
 
+from dt_highway._version import __version__
 from dt_highway.config import ConfigError, DTConfig, load_config
 from dt_highway.env import ENV_ID, DTHighwayEnv
-from dt_highway.trial_log import Trial, load_trial
+from dt_highway.metrics.trial_log import Trial, load_trial
 
-try:
-    __version__ = version("dt-highway")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+unknown"
 
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv")

@@ -87,7 +87,7 @@ def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
 
 # ----------------------------------------------------------------------------- twin-eval
 def cmd_twin_eval(args: argparse.Namespace) -> int:
-    from dt_highway.twin.evaluate import episode_steps, evaluate_twin
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
 
     cfg = _config(args)
     steps = args.episodes * episode_steps(cfg)
@@ -112,7 +112,7 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
     """Headless episodes with the twin: what the ego receives, and how the tags compare."""
-    from dt_highway.twin.evaluate import episode_steps, evaluate_twin
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
 
     cfg = _config(args)
     out = Path(args.out)
@@ -167,7 +167,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         import gymnasium as gym
 
         from dt_highway.config import deep_merge
-        from dt_highway.study import condition_config
+        from dt_highway.conditions import condition_config
 
         for condition in conditions:
             cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
@@ -281,7 +281,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- camera
 def cmd_camera(args: argparse.Namespace) -> int:
     """Sample frames of the ego camera as PNGs."""
-    from dt_highway.camera.export import record_frames
+    from dt_highway.evaluation.frames import record_frames
 
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
@@ -300,7 +300,7 @@ def cmd_camera(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- matching
 def cmd_matching(args: argparse.Namespace) -> int:
     """The target-identification benchmark (paper Fig. 6)."""
-    from dt_highway.perception.benchmark import run_matching, run_sweep, write_outputs, write_sweep
+    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 
     cfg = _config(args)
     out = Path(args.out)
@@ -461,7 +461,7 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
           f"last loss {result['last_losses'].get('loss', float('nan')):.3f}")
     print(f"wrote {result['weights']} (checkpoint {result['checkpoint']})")
     if args.eval_frames:
-        from dt_highway.perception.learned.evaluate import EVAL_SEED
+        from dt_highway.evaluation.detector import EVAL_SEED
 
         args.weights, args.frames, args.json, args.seed = str(out), args.eval_frames, False, EVAL_SEED
         return cmd_detector_eval(args)
@@ -471,7 +471,7 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
 def cmd_detector_eval(args: argparse.Namespace) -> int:
     """AP of the learned detector on held-out frames."""
     from dt_highway.perception.learned.detector import LearnedDetector
-    from dt_highway.perception.learned.evaluate import evaluate
+    from dt_highway.evaluation.detector import evaluate
 
     try:
         det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score, scale=args.scale)
@@ -504,7 +504,8 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an RL driver with stable-baselines3."""
     from dt_highway.rl.config import load_train_config
-    from dt_highway.rl.train import sidecar_path, train
+    from dt_highway.rl.files import sidecar_path
+    from dt_highway.rl.train import train
 
     cfg = load_train_config(args.config)
     out = Path(args.out)
@@ -528,7 +529,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
-    from dt_highway.rl.evaluate import evaluate
+    from dt_highway.evaluation.rl import evaluate
 
     from dt_highway.drivers import load_driver
 

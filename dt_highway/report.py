@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 
 from dt_highway.jsonio import dump_json
-from dt_highway.safety import CUT_IN_WINDOW_S, MS_TO_KMH, TTC_CAP_S, TTC_STAR_S
-from dt_highway.trial_log import load_trial
+from dt_highway.metrics.safety import CUT_IN_WINDOW_S, MS_TO_KMH, TTC_CAP_S, TTC_STAR_S
+from dt_highway.metrics.trial_log import load_trial
 
 SUMMARY_METRICS = ("speed_variance_kmh2", "ttc_mean_s", "ttc_min_s", "tet_s", "tit_s2", "speed_mean_kmh",
                    "headway_mean_s", "drac_max_mps2", "hard_brakes", "cut_in_ttc_min_s", "reaction_mean_s")

@@ -6,7 +6,7 @@ the driver is shown. In the ``baseline`` condition the camera and fusion are off
 is shown); in ``adas`` they run and the driver sees the overlay.
 
 Trials run in a process pool (``workers``), each writing its own crash-safe log directory
-(:mod:`dt_highway.trial_log`) under ``<out>/trials/<condition>-<i>``; a finished trial is
+(:mod:`dt_highway.metrics.trial_log`) under ``<out>/trials/<condition>-<i>``; a finished trial is
 skipped when the study is run again (resume), and a trial that fails is reported and marked
 aborted without stopping the others.
 """
@@ -22,10 +22,15 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-from dt_highway.config import ConfigError, deep_merge, load_config
-from dt_highway.jsonio import dump_json
+import gymnasium as gym
+import numpy as np
 
-CONDITIONS = ("baseline", "adas")
+from dt_highway.conditions import CONDITIONS, condition_config
+from dt_highway.config import ConfigError, deep_merge, load_config
+from dt_highway.drivers import load_driver
+from dt_highway.jsonio import dump_json
+from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter, load_trial, write_parquet
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -126,26 +131,12 @@ class TrialSpec:
     parquet: bool = False
 
 
-def condition_config(condition: str) -> dict[str, Any]:
-    """What a condition changes in the configuration."""
-    if condition not in CONDITIONS:
-        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
-    on = condition == "adas"
-    return {"highway": {"action": {"type": "Driver"}}, "camera": {"enabled": on}, "fusion": {"enabled": on}}
-
-
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Run one trial and write its log.
 
     :return: ``status`` (``completed``, ``skipped`` or ``failed``), the directory, the
         error (when failed) and the trial's metrics (when it has a log)
     """
-    import gymnasium as gym
-    import numpy as np
-
-    from dt_highway.drivers import load_driver
-    from dt_highway.trial_log import TrialWriter, load_trial, write_parquet
-
     out = Path(spec.directory)
     done = None
     if (out / "meta.json").exists():
@@ -199,50 +190,6 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         except (ImportError, ValueError) as err:  # the CSV log is complete: report, keep it
             return {"status": "failed", "directory": str(out), "error": str(err)}
     return {"status": "completed", "directory": str(out), "metrics": trial.metrics()}
-
-
-class TrialRecorder:
-    """Writes what each env step reports into a trial log: one row per simulation step
-    (safety samples, the driver's action or keys, the marks shown) and the events (cut-ins,
-    marks shown and hidden, lane changes, collisions). Shared by scripted and keyboard trials.
-
-    :param log: the trial's writer
-    """
-
-    def __init__(self, log: Any) -> None:
-        self.log = log
-        self.shown: dict[int, str] = {}
-        self._lane: int | None = None
-        self._crashed = False
-
-    def record(self, info: dict[str, Any], action: Any, keys: str = "") -> None:
-        """Log the samples and events of one env step.
-
-        :param info: the step's info (``safety``, ``adas``, ``time_s``)
-        :param action: the ``[acceleration, lane]`` action that led to it
-        :param keys: keys held (keyboard trials), ``;``-separated
-        """
-        log = self.log
-        overlay = (info.get("adas") or {}).get("overlay", [])
-        now = {int(o["vehicle_id"]): o["label"] for o in overlay}
-        t = float(info["time_s"])
-        for vid in now.keys() - self.shown.keys():
-            log.event("overlay_shown", t, vehicle_id=vid, label=now[vid])
-        for vid in self.shown.keys() - now.keys():
-            log.event("overlay_hidden", t, vehicle_id=vid)
-        self.shown = now
-        for c in info["safety"]["cut_ins"]:
-            log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
-                      gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
-        ids = sorted(now)
-        for s in info["safety"]["samples"]:
-            if self._lane is not None and s["lane"] != self._lane:
-                log.event("lane_change", s["t_s"], from_lane=self._lane, to_lane=s["lane"])
-            if s["crashed"] and not self._crashed:
-                log.event("collision", s["t_s"], leader_id=s["leader_id"])
-            self._lane, self._crashed = s["lane"], bool(s["crashed"])
-            log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": keys,
-                      "overlay_ids": ";".join(str(v) for v in ids), "overlay_labels": ";".join(now[v] for v in ids)})
 
 
 @dataclass

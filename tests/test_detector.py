@@ -13,7 +13,7 @@ from dt_highway.cli import main
 from dt_highway.perception.detect import iou
 from dt_highway.perception.learned import SHIPPED, Architecture, LearnedDetector, PointDetector, load_weights, save_weights
 from dt_highway.perception.learned.data import TRAIN_SEED0, SceneSettings, make_frame, scored
-from dt_highway.perception.learned.evaluate import evaluate
+from dt_highway.evaluation.detector import evaluate
 from dt_highway.perception.learned.model import cell_centres, make_targets, peaks
 from dt_highway.perception.learned.train import TrainSettings, randomise_colours, train
 

@@ -9,7 +9,8 @@ import pytest
 
 import dt_highway  # noqa: F401  (registers the env)
 from dt_highway.drivers import HumanDriver, HumanParams, IDMParams
-from dt_highway.drivers.scripted import idm_accel, look_around, marked_vehicles
+from dt_highway.drivers.idm import idm_accel
+from dt_highway.env.senses import look_around, marked_vehicles
 
 
 def test_idm_acceleration_by_hand():

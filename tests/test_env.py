@@ -8,7 +8,7 @@ import pytest
 
 import dt_highway  # noqa: F401
 from dt_highway.env import DTHighwayEnv
-from dt_highway.traffic import AGGRESSIVE, NORMAL
+from dt_highway.world.traffic import AGGRESSIVE, NORMAL
 
 
 def _make(cfg, **kw):

@@ -7,7 +7,7 @@ from highway_env.vehicle.kinematics import Vehicle
 
 import dt_highway  # noqa: F401  (registers the env)
 from dt_highway.config import load_config
-from dt_highway.fastroad import FastRoad
+from dt_highway.world.road import FastRoad
 
 
 def _roads(seed):

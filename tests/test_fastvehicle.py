@@ -10,9 +10,9 @@ from highway_env.vehicle.kinematics import Vehicle
 
 import dt_highway  # noqa: F401  (registers the env)
 from dt_highway.env import DTHighwayEnv
-from dt_highway.fastobs import FastKinematicObservation
-from dt_highway.fastroad import BROAD_PHASE_MARGIN_M, FastRoadNetwork
-from dt_highway.fastvehicle import FastIDMVehicle, surely_apart
+from dt_highway.world.observation import FastKinematicObservation
+from dt_highway.world.road import BROAD_PHASE_MARGIN_M, FastRoadNetwork
+from dt_highway.world.vehicle import FastIDMVehicle, surely_apart
 from dt_highway.twin import FixStore, GnssFix, HighwayMap
 from dt_highway.twin.tagger import median
 
@@ -131,7 +131,7 @@ class _WideBerth(Vehicle):
 
 
 def test_a_vehicle_with_its_own_collision_check_gets_it():
-    from dt_highway.fastroad import FastRoad
+    from dt_highway.world.road import FastRoad
 
     crashed = {}
     for name, cls in (("stock", Road), ("fast", FastRoad)):

@@ -10,11 +10,11 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError, load_config
 from dt_highway.drivers import load_driver
-from dt_highway.drivers.scripted import cars_under_marks
+from dt_highway.env.senses import cars_under_marks
 from dt_highway.env import DTHighwayEnv, OverlayKinematics
 from dt_highway.rl.config import load_train_config, parse_train_config
-from dt_highway.rl.evaluate import evaluate
-from dt_highway.rl.policy import PolicyDriver, load_policy
+from dt_highway.evaluation.rl import evaluate
+from dt_highway.drivers.policy import PolicyDriver, load_policy
 from dt_highway.rl.train import train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -240,7 +240,7 @@ def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, ca
 
 
 def test_the_assisted_menu_brakes_for_a_car_coming_into_the_lane():
-    from dt_highway.drivers.assisted import AssistedMenu
+    from dt_highway.env.assisted import AssistedMenu
 
     cfg = load_config(str(ROOT / "envs/highway-trial.toml"), SHORT, {"highway": {"action": {"type": "Driver"}}})
     env = DTHighwayEnv(config=cfg.to_dict())

@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dt_highway.safety import SafetyMonitor, cut_in_outcomes, drac, time_exposed, time_to_collision, trial_metrics
-from dt_highway.trial_log import TrialWriter, load_trial
+from dt_highway.metrics.safety import SafetyMonitor, cut_in_outcomes, drac, time_exposed, time_to_collision, trial_metrics
+from dt_highway.metrics.trial_log import TrialWriter, load_trial
 
 
 def test_ttc_and_drac_by_hand():
@@ -104,7 +104,7 @@ def test_a_torn_last_line_is_dropped(tmp_path):
 
 _WRITER = """
 import sys, time
-from dt_highway.trial_log import TrialWriter
+from dt_highway.metrics.trial_log import TrialWriter
 log = TrialWriter(sys.argv[1], {"driver": "test"})
 t = 0.0
 while True:

@@ -4,7 +4,7 @@ import numpy as np
 
 from dt_highway.config import TrafficConfig, load_config
 from dt_highway.env import DTHighwayEnv
-from dt_highway.traffic import AGGRESSIVE, NORMAL, DriverPopulation
+from dt_highway.world.traffic import AGGRESSIVE, NORMAL, DriverPopulation
 
 
 def test_population_share_is_exact_and_seeded():

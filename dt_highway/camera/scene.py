@@ -13,7 +13,7 @@ import numpy as np
 from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road
 
-from dt_highway.traffic import vehicle_id
+from dt_highway.world.traffic import vehicle_id
 
 
 @dataclass(frozen=True)

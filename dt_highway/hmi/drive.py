@@ -7,7 +7,7 @@ drawn on it (:func:`dt_highway.overlay.draw_overlay`, from the fusion's output o
 (M toggles it). The simulation is locked to the wall clock at its configured frequency; the
 window redraws at up to ``fps`` frames per second.
 
-Every trial is logged like a scripted one (:mod:`dt_highway.trial_log`), plus every key press
+Every trial is logged like a scripted one (:mod:`dt_highway.metrics.trial_log`), plus every key press
 and release with its time and the keys held at each step. ``--keys-from`` replays a key
 script (no prompts or confirmations then), ``--screenshot-every`` saves PNGs of exactly what
 the participant saw. Headless: ``SDL_VIDEODRIVER=offscreen``.
@@ -260,7 +260,7 @@ class _Trial:
 
     def __init__(self, env: Any, log: Any, opts: DriveOptions, label: str, info: dict[str, Any],
                  shots_dir: Path) -> None:
-        from dt_highway.study import TrialRecorder
+        from dt_highway.metrics.trial_log import TrialRecorder
 
         self.env, self.u, self.log, self.opts, self.label = env, env.unwrapped, log, opts, label
         self.cfg_fusion = self.u.dt_config.fusion.enabled
@@ -414,7 +414,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     import gymnasium as gym
     import pygame
 
-    from dt_highway.trial_log import TrialWriter
+    from dt_highway.metrics.trial_log import TrialWriter
 
     overrides = list(opts.overrides)
     if opts.duration_s is not None:

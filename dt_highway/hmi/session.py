@@ -46,7 +46,7 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None) -
 
 
 def _completed(opts: DriveOptions) -> bool:
-    from dt_highway.trial_log import load_trial
+    from dt_highway.metrics.trial_log import load_trial
 
     d = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
     try:

@@ -23,9 +23,9 @@ Observation settings:
   policy (stable-baselines3's ``MultiInputPolicy``); the camera is made small for it.
 
 Actions (``action``): the ``DiscreteDriver`` menu
-(:class:`~dt_highway.drivers.control.DiscreteDriverAction`): ``pedals``, keep the lane with
+(:class:`~dt_highway.env.actions.DiscreteDriverAction`): ``pedals``, keep the lane with
 one of ``accels_mps2`` or ask for one lane left or right; ``assisted``
-(:class:`~dt_highway.drivers.assisted.AssistedMenu`), choose one of ``speeds_mps`` as desired
+(:class:`~dt_highway.env.assisted.AssistedMenu`), choose one of ``speeds_mps`` as desired
 speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap.
 """
 
@@ -36,9 +36,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, load_config, read_toml
-from dt_highway.drivers.assisted import DEFAULT_SPEEDS_MPS
-from dt_highway.drivers.control import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, DEFAULT_DISCRETE_ACCELS_MPS2
+from dt_highway.env.assisted import DEFAULT_SPEEDS_MPS
+from dt_highway.env.actions import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, DEFAULT_DISCRETE_ACCELS_MPS2
 
 OBSERVATIONS = ("kinematics", "adas", "vision")
 ALGORITHMS = ("PPO", "DQN")
@@ -90,8 +91,6 @@ class TrainConfig(BaseModel):
 
         :raises ConfigError: on a bad scenario or override
         """
-        from dt_highway.study import condition_config
-
         condition = condition or ("adas" if self.observation == "adas" else "baseline")
         extra = condition_config(condition)
         extra["highway"] = {"observation": self.observation_config(), "action": self.action_config()}

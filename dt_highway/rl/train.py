@@ -9,12 +9,11 @@ the best one is kept. Checkpoints and a CSV log of stable-baselines3's statistic
 ``<out>.d/``; TensorBoard logs optionally. Beside the model ``<out>.zip`` goes
 ``<out>.json``: the training configuration, the resolved env configuration, the package
 versions, the evaluations and the model file's SHA-256, which is what
-:func:`~dt_highway.rl.policy.load_policy` reads to drive with it.
+:func:`~dt_highway.drivers.policy.load_policy` reads to drive with it.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -28,40 +27,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Check
 
 from dt_highway.config import ConfigError
 from dt_highway.rl.config import TrainConfig
+from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
 
 ENV_ID = "dt_highway:dt-highway-v0"
 VISION_DQN_BUFFER = 20_000
 """DQN's replay buffer with image observations unless ``buffer_size`` is given [transitions] (~1.5 GB)"""
-FORMAT = "dt-highway policy 1"
-
-
-def sidecar_path(model_path: str | Path) -> Path:
-    """Where the metadata of a policy lives: ``agents/x.zip`` -> ``agents/x.json``."""
-    return Path(model_path).with_suffix(".json")
-
-
-def sha256(path: str | Path) -> str:
-    """SHA-256 of a file, hex."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def versions() -> dict[str, str]:
-    """Versions of the packages a policy file depends on."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for pkg in ("dt-highway", "stable-baselines3", "torch", "gymnasium", "highway-env", "numpy"):
-        try:
-            out[pkg] = version(pkg)
-        except PackageNotFoundError:
-            out[pkg] = "unknown"
-    return out
-
-
 class Reseed(gym.Wrapper):
     """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
     (vectorised envs pass a seed to the first reset only)."""

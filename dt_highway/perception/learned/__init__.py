@@ -3,7 +3,7 @@
 * :mod:`~dt_highway.perception.learned.data`: synthetic frames and their labels;
 * :mod:`~dt_highway.perception.learned.model`: the network, its targets, losses and decoding;
 * :mod:`~dt_highway.perception.learned.train`: CPU training with checkpoints;
-* :mod:`~dt_highway.perception.learned.evaluate`: COCO AP on held-out frames (pycocotools);
+* :mod:`~dt_highway.evaluation.detector`: COCO AP on held-out frames (pycocotools);
 * :mod:`~dt_highway.perception.learned.weights`: the weights file (``weights_only`` loading);
 * :class:`LearnedDetector`: the detector interface (``detector.kind = "learned"``).
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from dt_highway._version import __version__
 from dt_highway.perception.learned.model import Architecture, PointDetector
 
 FORMAT = "dt-highway-detector"
@@ -31,8 +32,6 @@ def save_weights(model: PointDetector, path: str | Path, meta: dict | None = Non
     :param meta: training facts to keep beside the weights (plain values only)
     :return: the path written
     """
-    from dt_highway import __version__
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     obj = {

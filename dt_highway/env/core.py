@@ -3,7 +3,7 @@
 The env subclasses ``highway_env.envs.HighwayEnv``. On top of it:
 
 * its configuration is the typed tree of :mod:`dt_highway.config`, merged deeply;
-* NPCs are typed drivers (:mod:`dt_highway.traffic`) with stable ids drawn from a driver
+* NPCs are typed drivers (:mod:`dt_highway.world.traffic`) with stable ids drawn from a driver
   population that persists across the episodes of one env;
 * every simulation step (not only every policy step), connected vehicles upload GNSS
   fixes, the cloud twin stores and tags them, and the downlink delivers the twin's view to
@@ -36,14 +36,15 @@ from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
-from dt_highway.drivers.control import DiscreteDriverAction, DriverAction
-from dt_highway.fastobs import FastKinematicObservation
-from dt_highway.fastroad import FastRoad
-from dt_highway.fastvehicle import FastIDMVehicle, velocity
+from dt_highway.env.senses import cars_under_marks
+from dt_highway.env.actions import DiscreteDriverAction, DriverAction
+from dt_highway.world.observation import FastKinematicObservation
+from dt_highway.world.road import FastRoad
+from dt_highway.world.vehicle import FastIDMVehicle, velocity
 from dt_highway.overlay import OverlayStabilizer
-from dt_highway.safety import SafetyMonitor
+from dt_highway.metrics.safety import SafetyMonitor
 from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
-from dt_highway.traffic import (
+from dt_highway.world.traffic import (
     EGO_ID,
     DriverPopulation,
     TrafficEvent,
@@ -130,7 +131,7 @@ class OverlayKinematics(_KinematicsPlus):
     """highway-env's Kinematics observation plus a column ``marked``: 1 when the ADAS overlay
     shows an "aggressive driver" marker on that vehicle, as the driver sees it on the screen.
 
-    The marker is read the way :func:`~dt_highway.drivers.scripted.cars_under_marks` reads it
+    The marker is read the way :func:`~dt_highway.env.senses.cars_under_marks` reads it
     for scripted drivers: the car whose visible outline best fits the marker's box. When the
     fusion put the label on the wrong car, this column is on the wrong car too; without the
     ADAS (camera or fusion off, the baseline condition) it is all zeros. The twin's verdict
@@ -143,8 +144,6 @@ class OverlayKinematics(_KinematicsPlus):
         adas = self.env.adas_output()
         if adas is None or not adas["overlay"]:
             return
-        from dt_highway.drivers.scripted import cars_under_marks
-
         marked = cars_under_marks(self.env, adas["overlay"])
         for r, v in enumerate(rows[1:], start=1):
             if vehicle_id(v) in marked:
@@ -251,7 +250,7 @@ class DTHighwayEnv(HighwayEnv):
         flat["observation"] = dict(cfg.highway.observation)
         flat["action"] = dict(cfg.highway.action)
         if cfg.traffic.fast_road:  # highway-env's IDM/MOBIL with float arithmetic (same draws, same models)
-            flat["other_vehicles_type"] = "dt_highway.fastvehicle.FastIDMVehicle"
+            flat["other_vehicles_type"] = "dt_highway.world.vehicle.FastIDMVehicle"
         return flat
 
     def configure(self, config: dict | None) -> None:

@@ -19,7 +19,7 @@ of vehicles (``step``). With 50 vehicles those two loops are most of a simulatio
   broad phase is highway-env's own early exit (distance between centres against the half
   diagonals plus the caller's travel in the step), computed for all pairs at once; the
   narrow phase is the separating-axis test of the two rectangles on floats
-  (:func:`~dt_highway.fastvehicle.surely_apart`). Both keep a 1e-6 m margin: a pair they
+  (:func:`~dt_highway.world.vehicle.surely_apart`). Both keep a 1e-6 m margin: a pair they
   skip is one whose check would return "no contact" with no side effect.
 
 Only our env uses it (highway-env's classes are not patched).
@@ -35,7 +35,7 @@ from highway_env.road.lane import StraightLane
 from highway_env.road.road import LaneIndex, Road, RoadNetwork
 from highway_env.vehicle.objects import Landmark
 
-from dt_highway.fastvehicle import longitudinal, surely_apart
+from dt_highway.world.vehicle import longitudinal, surely_apart
 
 BROAD_PHASE_MARGIN_M = 1e-6
 """Extra distance the collision broad phase keeps pairs for [m]: our distances may differ from

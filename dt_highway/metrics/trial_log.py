@@ -30,6 +30,7 @@ from typing import Any
 
 import pandas as pd
 
+from dt_highway._version import __version__
 from dt_highway.jsonio import json_safe
 
 META, STEPS, EVENTS = "meta.json", "steps.csv", "events.jsonl"
@@ -38,7 +39,7 @@ STEP_COLUMNS = (
     "drac_mps2", "headway_s", "crashed", "action_accel_mps2", "action_lane", "keys", "overlay_ids",
     "overlay_labels",
 )
-"""Columns of ``steps.csv`` (units in the names; see :mod:`dt_highway.safety`)"""
+"""Columns of ``steps.csv`` (units in the names; see :mod:`dt_highway.metrics.safety`)"""
 
 
 def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
@@ -48,8 +49,6 @@ def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
 
 
 def _version() -> str:
-    from dt_highway import __version__
-
     return __version__
 
 
@@ -175,8 +174,8 @@ class Trial:
         return [e for e in self.events if e.get("kind") == "cut_in"]
 
     def metrics(self) -> dict[str, Any]:
-        """Every safety metric of the trial (:func:`dt_highway.safety.trial_metrics`)."""
-        from dt_highway.safety import trial_metrics
+        """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`)."""
+        from dt_highway.metrics.safety import trial_metrics
 
         return trial_metrics(self.steps, self.dt_s, self.cut_ins)
 
@@ -229,3 +228,47 @@ def load_trial(directory: str | Path) -> Trial:
             except json.JSONDecodeError:
                 continue
     return Trial(steps, events, meta, d)
+
+
+class TrialRecorder:
+    """Writes what each env step reports into a trial log: one row per simulation step
+    (safety samples, the driver's action or keys, the marks shown) and the events (cut-ins,
+    marks shown and hidden, lane changes, collisions). Shared by scripted and keyboard trials.
+
+    :param log: the trial's writer
+    """
+
+    def __init__(self, log: Any) -> None:
+        self.log = log
+        self.shown: dict[int, str] = {}
+        self._lane: int | None = None
+        self._crashed = False
+
+    def record(self, info: dict[str, Any], action: Any, keys: str = "") -> None:
+        """Log the samples and events of one env step.
+
+        :param info: the step's info (``safety``, ``adas``, ``time_s``)
+        :param action: the ``[acceleration, lane]`` action that led to it
+        :param keys: keys held (keyboard trials), ``;``-separated
+        """
+        log = self.log
+        overlay = (info.get("adas") or {}).get("overlay", [])
+        now = {int(o["vehicle_id"]): o["label"] for o in overlay}
+        t = float(info["time_s"])
+        for vid in now.keys() - self.shown.keys():
+            log.event("overlay_shown", t, vehicle_id=vid, label=now[vid])
+        for vid in self.shown.keys() - now.keys():
+            log.event("overlay_hidden", t, vehicle_id=vid)
+        self.shown = now
+        for c in info["safety"]["cut_ins"]:
+            log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
+                      gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
+        ids = sorted(now)
+        for s in info["safety"]["samples"]:
+            if self._lane is not None and s["lane"] != self._lane:
+                log.event("lane_change", s["t_s"], from_lane=self._lane, to_lane=s["lane"])
+            if s["crashed"] and not self._crashed:
+                log.event("collision", s["t_s"], leader_id=s["leader_id"])
+            self._lane, self._crashed = s["lane"], bool(s["crashed"])
+            log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": keys,
+                      "overlay_ids": ";".join(str(v) for v in ids), "overlay_labels": ";".join(now[v] for v in ids)})

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from dt_highway.config import ConfigError
-from dt_highway.drivers.scripted import Driver
+from dt_highway.drivers.base import Driver
 from dt_highway.rl.config import TrainConfig, parse_train_config
-from dt_highway.rl.train import FORMAT, sha256, sidecar_path
+from dt_highway.rl.files import FORMAT, sha256, sidecar_path
 
 
 class PolicyDriver(Driver):
@@ -60,9 +60,9 @@ class PolicyDriver(Driver):
 
         :raises ConfigError: one line, on any mismatch
         """
-        from dt_highway.drivers.control import DiscreteDriverAction
+        from dt_highway.env.actions import DiscreteDriverAction
         from dt_highway.env import OverlayKinematics
-        from dt_highway.fastobs import FastKinematicObservation
+        from dt_highway.world.observation import FastKinematicObservation
 
         for key in ("lanes_count", "policy_frequency", "simulation_frequency"):
             trained, here = self._trained("highway", key), env.config.get(key)

@@ -27,7 +27,7 @@ from highway_env.road.road import Road
 from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.config import DriverParams, TrafficConfig
-from dt_highway.fastvehicle import FastIDMVehicle, clip, local_coordinates, wrap_to_pi
+from dt_highway.world.vehicle import FastIDMVehicle, clip, local_coordinates, wrap_to_pi
 
 NORMAL = "normal"
 AGGRESSIVE = "aggressive"

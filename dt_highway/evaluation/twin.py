@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from dt_highway.config import ConfigError, DTConfig, merge
-from dt_highway.traffic import AGGRESSIVE, EGO_ID
+from dt_highway.world.traffic import AGGRESSIVE, EGO_ID
 
 
 def episode_steps(config: DTConfig) -> int:

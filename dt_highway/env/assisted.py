@@ -1,6 +1,6 @@
 """An assisted action menu for RL drivers: choose a desired speed or a lane, IDM keeps the gap.
 
-With the raw pedals (:class:`~dt_highway.drivers.control.DiscreteDriverAction`'s
+With the raw pedals (:class:`~dt_highway.env.actions.DiscreteDriverAction`'s
 accelerations) a policy must learn car following, braking for cut-ins included, before it
 can learn anything about the traffic around it; in the trial highway (aggressive drivers
 cutting in several times a minute) that takes far more training than the questions need.
@@ -27,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from dt_highway.drivers.control import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
-from dt_highway.drivers.scripted import IDMParams, idm_accel, look_around
+from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+from dt_highway.drivers.idm import IDMParams, idm_accel
+from dt_highway.env.senses import look_around
 
 DEFAULT_SPEEDS_MPS = (18.0, 23.0, 27.0, 31.0)
 """Desired speeds of the assisted menu [m/s] (65, 83, 97, 112 km/h)"""

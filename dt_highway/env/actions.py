@@ -18,10 +18,9 @@ from highway_env.envs.common.action import ActionType
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-ACCEL_MIN_MPS2 = -8.0
-"""Hardest braking a driver can command [m/s^2] (about 0.8 g, a full stop on dry asphalt)"""
-ACCEL_MAX_MPS2 = 3.0
-"""Strongest acceleration a driver can command [m/s^2]"""
+from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
+from dt_highway.env.assisted import DEFAULT_SPEEDS_MPS, AssistedMenu
+
 
 
 class DrivenVehicle(ControlledVehicle):
@@ -137,7 +136,7 @@ class DiscreteDriverAction(DriverAction):
     Raw pedals (``assist = false``): action ``k < len(accels)`` keeps the lane with
     acceleration ``accels[k]`` [m/s^2]; the last two ask for one lane left, one lane right,
     with no acceleration. Assisted (``assist = true``,
-    :class:`~dt_highway.drivers.assisted.AssistedMenu`): action ``k < len(speeds)`` sets the
+    :class:`~dt_highway.env.assisted.AssistedMenu`): action ``k < len(speeds)`` sets the
     desired speed, the last two change lane when it is safe, and the Intelligent Driver Model
     keeps the gap. Either way each choice is the ``Driver`` action :meth:`driver_action`
     returns, so a policy trained on it drives anywhere a ``Driver`` action is taken.
@@ -155,8 +154,6 @@ class DiscreteDriverAction(DriverAction):
             raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
         self.assisted = None
         if assist:
-            from dt_highway.drivers.assisted import DEFAULT_SPEEDS_MPS, AssistedMenu
-
             try:
                 self.assisted = AssistedMenu(tuple(speeds_mps if speeds_mps is not None else DEFAULT_SPEEDS_MPS))
             except TypeError:

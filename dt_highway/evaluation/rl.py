@@ -3,7 +3,7 @@
 Each episode is one trial of the scenario in one condition, the driver acting through the
 ``Driver`` action as in a study. Return is the env's reward summed over the decisions
 (highway-env's reward: speed in ``reward_speed_range``, right lane, collision); the safety
-metrics are :func:`~dt_highway.safety.trial_metrics` of the episode's per-step samples.
+metrics are :func:`~dt_highway.metrics.safety.trial_metrics` of the episode's per-step samples.
 """
 
 from __future__ import annotations
@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
-from dt_highway.safety import trial_metrics
+from dt_highway.metrics.safety import trial_metrics
 
 
 def run_episode(driver: Any, env: Any, seed: int) -> dict[str, Any]:
@@ -66,7 +67,6 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
     import gymnasium as gym
 
     from dt_highway.drivers import load_driver
-    from dt_highway.study import condition_config
 
     if episodes < 1:
         raise ConfigError(f"--episodes must be >= 1 (got {episodes})")

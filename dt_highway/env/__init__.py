@@ -1,0 +1,5 @@
+"""``dt-highway-v0``: the env (core loop), its ADAS pipeline, observations and actions."""
+
+from dt_highway.env.core import ENV_ID, CameraObservation, DTHighwayEnv, OverlayKinematics, TwinTaggedKinematics, make_camera
+
+__all__ = ["ENV_ID", "CameraObservation", "DTHighwayEnv", "OverlayKinematics", "TwinTaggedKinematics", "make_camera"]

@@ -1,0 +1,112 @@
+"""Camera frames written with their ground truth (``dt-highway camera``): the pictures, the
+instance ids and the true boxes, for looking at the camera and for training data."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from dt_highway.camera.export import colourise_depth, colourise_instance, write_png
+from dt_highway.camera.render import CameraFrame
+from dt_highway.env import DTHighwayEnv
+from dt_highway.overlay import draw_overlay
+
+
+def draw_boxes(rgb: np.ndarray, frame: CameraFrame) -> np.ndarray:
+    """A copy of ``rgb`` with each vehicle's visible box (green, with id and visibility) and
+    amodal box (thin yellow) drawn: a look at the ground truth.
+    """
+    out = np.ascontiguousarray(rgb).copy()
+    for truth in frame.vehicles.values():
+        x1, y1, x2, y2 = (int(round(v)) for v in truth.amodal_box)
+        cv2.rectangle(out, (x1, y1), (x2, y2), (240, 220, 40), 1)
+        if truth.visible_box is None:
+            continue
+        x1, y1, x2, y2 = (int(round(v)) for v in truth.visible_box)
+        cv2.rectangle(out, (x1, y1), (x2, y2), (40, 230, 60), 1)
+        if x2 - x1 >= 12:
+            cv2.putText(out, f"{truth.vehicle_id} {truth.visibility:.2f}", (x1, max(9, y1 - 3)),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.32, (40, 230, 60), 1, cv2.LINE_AA)
+    return out
+
+
+def write_frame(frame: CameraFrame, out: Path, index: int, max_range_m: float, raw: bool = False) -> list[Path]:
+    """Write one frame's pictures: ``rgb``, ``depth`` (colour-mapped), ``instance`` and
+    ``boxes`` PNGs, and with ``raw`` an ``.npz`` of float depth [m] and int32 instance ids.
+
+    :return: the paths written
+    """
+    stem = f"{index:04d}"
+    files = {
+        out / f"rgb_{stem}.png": frame.rgb,
+        out / f"depth_{stem}.png": colourise_depth(frame.depth_m, max_range_m),
+        out / f"instance_{stem}.png": colourise_instance(frame.instance),
+        out / f"boxes_{stem}.png": draw_boxes(frame.rgb, frame),
+    }
+    for path, img in files.items():
+        write_png(path, img)
+    paths = list(files)
+    if raw:
+        path = out / f"frame_{stem}.npz"
+        np.savez_compressed(path, depth_m=frame.depth_m, instance=frame.instance)
+        paths.append(path)
+    return paths
+
+
+def record_frames(
+    config: Any,
+    frames: int,
+    seed: int,
+    out: Path,
+    every: int = 1,
+    raw: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Drive the env (ego on its autopilot unless configured otherwise) and write camera frames.
+
+    :param config: resolved :class:`~dt_highway.config.DTConfig` with the camera enabled
+    :param frames: number of frames to write [-]
+    :param seed: env seed
+    :param out: output directory (created)
+    :param every: policy steps between frames [-]
+    :param raw: also write ``.npz`` files with float depth and instance ids; with the fusion on
+        (``fusion.enabled``), ``overlay_XXXX.png`` shows the ADAS marks on each frame
+    :param progress: called with 1 after each frame
+    :return: a summary (files written, frames, vehicles seen)
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    env = DTHighwayEnv(config=config.to_dict())
+    env.reset(seed=seed)
+    max_range = config.camera.max_range_m
+    written: list[Path] = []
+    seen = set()
+    with (out / "frames.jsonl").open("w") as log:
+        for i in range(frames):
+            if i:
+                for _ in range(every):
+                    _, _, terminated, truncated, _ = env.step(0)
+                    if terminated or truncated:
+                        env.reset()
+            frame = env.camera_frame()
+            written += write_frame(frame, out, i, max_range, raw)
+            if env.adas is not None:  # the ADAS view: the marks a driver sees, drawn on the frame
+                path = out / f"overlay_{i:04d}.png"
+                cv2.imwrite(str(path), draw_overlay(frame.rgb, env.adas["overlay"])[..., ::-1])
+                written.append(path)
+            seen.update(v for v, t in frame.vehicles.items() if t.visible_box is not None)
+            log.write(json.dumps({
+                "index": i,
+                "time_s": round(frame.time_s, 6),
+                "pose": {"x_m": frame.pose.x_m, "y_m": frame.pose.y_m, "heading_rad": frame.pose.heading_rad},
+                "vehicles": [t.to_dict() for t in frame.vehicles.values()],
+            }) + "\n")
+            log.flush()
+            if progress is not None:
+                progress(1)
+    env.close()
+    return {"frames": frames, "files": len(written) + 1, "vehicles_seen": len(seen), "out": str(out)}
