@@ -15,7 +15,6 @@ from dt_highway.config import ConfigError, DTConfig, load_config
 from dt_highway.env import ENV_ID, DTHighwayEnv
 from dt_highway.metrics.trial_log import Trial, load_trial
 
-
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv")
 

@@ -166,8 +166,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
         import gymnasium as gym
 
-        from dt_highway.config import deep_merge
         from dt_highway.conditions import condition_config
+        from dt_highway.config import deep_merge
 
         for condition in conditions:
             cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
@@ -300,7 +300,12 @@ def cmd_camera(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- matching
 def cmd_matching(args: argparse.Namespace) -> int:
     """The target-identification benchmark (paper Fig. 6)."""
-    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+    from dt_highway.evaluation.matching import (
+        run_matching,
+        run_sweep,
+        write_outputs,
+        write_sweep,
+    )
 
     cfg = _config(args)
     out = Path(args.out)
@@ -470,8 +475,8 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
 
 def cmd_detector_eval(args: argparse.Namespace) -> int:
     """AP of the learned detector on held-out frames."""
-    from dt_highway.perception.learned.detector import LearnedDetector
     from dt_highway.evaluation.detector import evaluate
+    from dt_highway.perception.learned.detector import LearnedDetector
 
     try:
         det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score, scale=args.scale)
@@ -529,9 +534,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
-    from dt_highway.evaluation.rl import evaluate
-
     from dt_highway.drivers import load_driver
+    from dt_highway.evaluation.rl import evaluate
 
     scenario = args.scenario or EVAL_SCENARIO
     driver = load_driver(args.driver)  # mistakes in the driver or the scenario: one line, before the bar

@@ -25,11 +25,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from dt_highway.conditions import CONDITIONS, condition_config
+from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.jsonio import dump_json
-from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter, load_trial, write_parquet
+from dt_highway.metrics.trial_log import (
+    TrialRecorder,
+    TrialWriter,
+    load_trial,
+    write_parquet,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 

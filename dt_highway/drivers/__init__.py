@@ -17,7 +17,12 @@ from __future__ import annotations
 from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, Driver
 from dt_highway.drivers.files import KINDS, load_driver, make_driver
 from dt_highway.drivers.idm import IDMParams, idm_accel
-from dt_highway.drivers.scripted import HumanDriver, HumanParams, IDMDriver, RandomDriver
+from dt_highway.drivers.scripted import (
+    HumanDriver,
+    HumanParams,
+    IDMDriver,
+    RandomDriver,
+)
 
 __all__ = [
     "ACCEL_MAX_MPS2", "ACCEL_MIN_MPS2", "KINDS", "Driver", "HumanDriver", "HumanParams", "IDMDriver", "IDMParams",

@@ -12,7 +12,12 @@ from typing import Any
 from dt_highway.config import ConfigError, read_toml
 from dt_highway.drivers.base import Driver
 from dt_highway.drivers.idm import IDMParams
-from dt_highway.drivers.scripted import HumanDriver, HumanParams, IDMDriver, RandomDriver
+from dt_highway.drivers.scripted import (
+    HumanDriver,
+    HumanParams,
+    IDMDriver,
+    RandomDriver,
+)
 
 KINDS = ("human", "idm", "random")
 

@@ -60,8 +60,8 @@ class PolicyDriver(Driver):
 
         :raises ConfigError: one line, on any mismatch
         """
-        from dt_highway.env.actions import DiscreteDriverAction
         from dt_highway.env import OverlayKinematics
+        from dt_highway.env.actions import DiscreteDriverAction
         from dt_highway.world.observation import FastKinematicObservation
 
         for key in ("lanes_count", "policy_frequency", "simulation_frequency"):
@@ -148,7 +148,10 @@ def _same_space(a: Any, b: Any) -> bool:
     """Whether the env's space ``a`` is the model's ``b`` (stable-baselines3 stores images
     channels-first and transposes channels-last observations itself)."""
     from gymnasium import spaces
-    from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
+    from stable_baselines3.common.preprocessing import (
+        is_image_space,
+        is_image_space_channels_first,
+    )
     from stable_baselines3.common.vec_env import VecTransposeImage
 
     if isinstance(a, spaces.Dict) and isinstance(b, spaces.Dict):

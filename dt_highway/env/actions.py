@@ -22,7 +22,6 @@ from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
 from dt_highway.env.assisted import DEFAULT_SPEEDS_MPS, AssistedMenu
 
 
-
 class DrivenVehicle(ControlledVehicle):
     """The ego under a driver: commanded acceleration, lane changes, lane keeping.
 

@@ -22,28 +22,37 @@ import math
 from typing import Any
 
 import numpy as np
-from gymnasium import spaces
 from highway_env.envs.common.action import action_factory
-from highway_env.envs.common.observation import ObservationType, observation_factory
+from highway_env.envs.common.observation import observation_factory
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
-from scipy.optimize import linear_sum_assignment
 
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
-from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings, depth_to_uint8
+from dt_highway.camera.render import (
+    CameraFrame,
+    CameraRenderer,
+    RenderSettings,
+)
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
-from dt_highway.env.senses import cars_under_marks
 from dt_highway.env.actions import DiscreteDriverAction, DriverAction
+from dt_highway.env.adas import AdasPipeline
+from dt_highway.env.observations import (
+    CameraObservation,
+    OverlayKinematics,
+    TwinTaggedKinematics,
+)
+from dt_highway.metrics.safety import SafetyMonitor
+from dt_highway.overlay import OverlayStabilizer
+from dt_highway.perception import Fusion
+from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
+from dt_highway.twin.tagger import HighwayMap
+from dt_highway.twin.uplink import Uplink, VehicleState
 from dt_highway.world.observation import FastKinematicObservation
 from dt_highway.world.road import FastRoad
-from dt_highway.world.vehicle import FastIDMVehicle, velocity
-from dt_highway.overlay import OverlayStabilizer
-from dt_highway.metrics.safety import SafetyMonitor
-from dt_highway.perception import Detections, Fusion, fusion_settings, make_detector
 from dt_highway.world.traffic import (
     EGO_ID,
     DriverPopulation,
@@ -52,135 +61,9 @@ from dt_highway.world.traffic import (
     driver_type,
     vehicle_id,
 )
-from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
-from dt_highway.twin.tagger import AGGRESSIVE, HighwayMap
-from dt_highway.twin.uplink import Uplink, VehicleState
+from dt_highway.world.vehicle import FastIDMVehicle, velocity
 
 ENV_ID = "dt-highway-v0"
-
-
-class _KinematicsPlus(FastKinematicObservation):
-    """highway-env's Kinematics observation plus the columns ``EXTRA_FEATURES``, filled by
-    :meth:`fill` from what the ego received. The extra columns are matched to the rows in
-    sorted order; the rows are shuffled afterwards if the observation asks for it."""
-
-    EXTRA_FEATURES: list[str] = []
-
-    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
-        super().__init__(env, **kwargs)
-        self.base_features = list(self.features)
-        self.features = self.base_features + self.EXTRA_FEATURES
-
-    def observe(self) -> np.ndarray:
-        if not self.env.road:
-            return np.zeros((self.vehicles_count, len(self.features)), dtype=np.float32)
-        features, self.features = self.features, self.base_features
-        order, self.order = self.order, "sorted"
-        try:
-            base = super().observe()
-            rows = self.observed()
-        finally:
-            self.features, self.order = features, order
-        out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
-        out[:, : base.shape[1]] = base
-        self.fill(out[:, base.shape[1]:], rows[: base.shape[0]])
-        if self.order == "shuffled":
-            self.env.np_random.shuffle(out[1:])
-        return out
-
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
-        """Write the extra columns (``extra``, one row per observed object, the ego first) in place."""
-        raise NotImplementedError
-
-
-class TwinTaggedKinematics(_KinematicsPlus):
-    """highway-env's Kinematics observation plus two columns from the delivered twin view.
-
-    ``twin_known`` is 1 when an observed vehicle was associated with a vehicle of the twin's
-    view, and ``twin_aggressive`` is then the twin's probability that its driver is
-    aggressive (0 otherwise). The association uses only what the ego received: each twin
-    position is moved forward by its age at its reported speed and heading, and observed
-    vehicles are matched to them by minimum total distance (Hungarian), gated at
-    ``GATE_M``. Ground truth is never read.
-    """
-
-    EXTRA_FEATURES = ["twin_known", "twin_aggressive"]
-    GATE_M = 6.0
-    """Largest distance between an observed vehicle and a twin position to associate them [m]"""
-
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
-        view: TwinView | None = self.env.twin_view
-        if view is None or not view.vehicles or len(rows) < 2:
-            return
-        now = self.env.twin_now_s
-        pred = np.array([
-            [v.x_m + v.speed_mps * math.cos(v.heading_rad) * (now - v.t_fix_s),
-             v.y_m + v.speed_mps * math.sin(v.heading_rad) * (now - v.t_fix_s)]
-            for v in view.vehicles
-        ])
-        pos = np.array([o.position for o in rows[1:]])
-        cost = np.linalg.norm(pos[:, None, :] - pred[None, :, :], axis=2)
-        for r, c in zip(*linear_sum_assignment(cost)):
-            if cost[r, c] <= self.GATE_M:
-                tv = view.vehicles[c]
-                extra[r + 1, 0] = 1.0
-                extra[r + 1, 1] = tv.confidence if tv.tag == AGGRESSIVE else 1.0 - tv.confidence
-
-
-class OverlayKinematics(_KinematicsPlus):
-    """highway-env's Kinematics observation plus a column ``marked``: 1 when the ADAS overlay
-    shows an "aggressive driver" marker on that vehicle, as the driver sees it on the screen.
-
-    The marker is read the way :func:`~dt_highway.env.senses.cars_under_marks` reads it
-    for scripted drivers: the car whose visible outline best fits the marker's box. When the
-    fusion put the label on the wrong car, this column is on the wrong car too; without the
-    ADAS (camera or fusion off, the baseline condition) it is all zeros. The twin's verdict
-    reaches the observation only through the fusion and the overlay, never from ground truth.
-    """
-
-    EXTRA_FEATURES = ["marked"]
-
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
-        adas = self.env.adas_output()
-        if adas is None or not adas["overlay"]:
-            return
-        marked = cars_under_marks(self.env, adas["overlay"])
-        for r, v in enumerate(rows[1:], start=1):
-            if vehicle_id(v) in marked:
-                extra[r, 0] = 1.0
-
-
-class CameraObservation(ObservationType):
-    """The ego camera's images, for vision agents: ``{"rgb": (H, W, 3), "depth": (H, W, 1)}``.
-
-    Both are ``uint8`` images as stable-baselines3's ``MultiInputPolicy`` expects. Depth is
-    encoded by :func:`~dt_highway.camera.render.depth_to_uint8` (linear, 255 at the camera,
-    0 at ``camera.max_range_m`` and beyond); the float depth in metres is on
-    ``env.unwrapped.camera_frame().depth_m``. The frame is the env's one rendering of the
-    step, shared with ``info`` and the fusion (it is not rendered twice).
-
-    :param depth: also return the depth image
-    """
-
-    def __init__(self, env: DTHighwayEnv, depth: bool = True) -> None:
-        super().__init__(env)
-        self.depth = bool(depth)
-
-    def space(self) -> spaces.Space:
-        cam = self.env.dt_config.camera
-        parts: dict[str, spaces.Space] = {
-            "rgb": spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 3), dtype=np.uint8)
-        }
-        if self.depth:
-            parts["depth"] = spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 1), dtype=np.uint8)
-        return spaces.Dict(parts)
-
-    def observe(self) -> dict[str, np.ndarray]:
-        frame = self.env.camera_frame()
-        out = {"rgb": frame.rgb}
-        if self.depth:
-            out["depth"] = depth_to_uint8(frame.depth_m, self.env.dt_config.camera.max_range_m)[..., None]
-        return out
 
 
 def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
@@ -225,6 +108,7 @@ class DTHighwayEnv(HighwayEnv):
         self._frame: CameraFrame | None = None
         self._frame_key: tuple[int, int] | None = None
         self._episode = 0
+        self.pipeline: AdasPipeline | None = None
         self.detector = None
         self.fusion: Fusion | None = None
         self.overlay: OverlayStabilizer | None = None
@@ -405,10 +289,10 @@ class DTHighwayEnv(HighwayEnv):
         self._build_camera()
         self.adas = None
         if cfg.fusion.enabled:
-            self.detector = make_detector(cfg.detector, rngs["detector"])
-            self.fusion = Fusion(self.camera.camera, fusion_settings(cfg.fusion), rngs["fusion"])
-            self.overlay = OverlayStabilizer(cfg.overlay.onset_frames, cfg.overlay.hold_s)
+            self.pipeline = AdasPipeline.from_config(cfg, self.camera.camera, rngs["detector"], rngs["fusion"])
+            self.detector, self.fusion, self.overlay = self.pipeline.detector, self.pipeline.fusion, self.pipeline.overlay
         else:
+            self.pipeline = None
             self.detector, self.fusion = None, None
         self.safety.reset()
         self._safety_samples, self._cut_ins = [], []
@@ -640,36 +524,9 @@ class DTHighwayEnv(HighwayEnv):
         return self.adas
 
     def _run_fusion(self) -> dict[str, Any]:
-        """Detector and fusion on this step's frame: the ADAS output (never ground truth).
-
-        :return: ``overlay``: the marks the driver sees: vehicles the twin tags aggressive
-            and the fusion placed in the image, kept steady by the overlay stabilizer
-            (``vehicle_id``, ``box`` [px], ``label``, ``confidence``, ``distance_m``, ``rule``,
-            ``held``); ``fusion_items``: the same before stabilizing (this frame's placements
-            only); ``placements``: every placed connected vehicle; ``n_boxes``
-        """
-        frame = self.camera_frame()
-        detections: Detections = self.detector.detect(frame)
+        """The ADAS pipeline on this step's frame and twin view (see :class:`~dt_highway.env.adas.AdasPipeline`)."""
         view = self.twin_view.vehicles if self.twin_view is not None else ()
-        placements = self.fusion.step(frame, detections, view, self.twin_now_s)
-        tags = {v.vehicle_id: v for v in view}
-        items = []
-        for vid, p in placements.items():
-            if p.box is None:
-                continue
-            tv = tags[vid]
-            if tv.tag == AGGRESSIVE:
-                items.append({
-                    "vehicle_id": vid, "box": list(p.box), "label": "aggressive driver",
-                    "confidence": float(tv.confidence), "distance_m": p.distance_m, "rule": p.rule,
-                })
-        return {
-            "overlay": self.overlay.update(items, self.sim_time_s),
-            "fusion_items": items,
-            "placements": {vid: list(p.box) for vid, p in placements.items() if p.box is not None},
-            "n_boxes": len(detections),
-            "method": self.fusion.settings.method,
-        }
+        return self.pipeline.run(self.camera_frame(), view, self.twin_now_s, self.sim_time_s)
 
     def _twin_info(self) -> list[dict[str, Any]] | None:
         """The delivered twin view with times on the episode clock [s] and ages [s]."""

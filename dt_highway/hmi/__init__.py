@@ -1,5 +1,13 @@
 """The human-machine interface: keyboard driving, key scripts, the driving window."""
 
-from dt_highway.hmi.keys import KEYS, KeyEvent, KeyScript, KeyScriptError, Pedals, PedalSettings, Steering
+from dt_highway.hmi.keys import (
+    KEYS,
+    KeyEvent,
+    KeyScript,
+    KeyScriptError,
+    Pedals,
+    PedalSettings,
+    Steering,
+)
 
 __all__ = ["KEYS", "KeyEvent", "KeyScript", "KeyScriptError", "PedalSettings", "Pedals", "Steering"]

@@ -8,13 +8,24 @@ from pathlib import Path
 import numpy as np
 
 from dt_highway.config import ConfigError, DetectorConfig, FusionConfig
-
 from dt_highway.perception.depth import box_distances, sample_regions
-from dt_highway.perception.detect import Detections, Detector, SimulatedDetector, SimulatedDetectorSettings, iou
+from dt_highway.perception.detect import (
+    Detections,
+    Detector,
+    SimulatedDetector,
+    SimulatedDetectorSettings,
+    iou,
+)
 from dt_highway.perception.fusion import METHODS, Fusion, FusionSettings, Placement
-from dt_highway.perception.matching import JointCost, Match, match_baseline, match_distance, match_each, match_joint
+from dt_highway.perception.matching import (
+    JointCost,
+    Match,
+    match_baseline,
+    match_distance,
+    match_each,
+    match_joint,
+)
 from dt_highway.perception.tracking import BoxTracker
-
 
 
 def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -> Detector:

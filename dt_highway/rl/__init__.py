@@ -4,6 +4,11 @@ and the evaluation of any driver (``dt-highway train``, ``dt-highway evaluate``)
 Model files (``.zip``) are pickles: load only the ones you trust.
 """
 
-from dt_highway.rl.config import ALGORITHMS, OBSERVATIONS, TrainConfig, load_train_config
+from dt_highway.rl.config import (
+    ALGORITHMS,
+    OBSERVATIONS,
+    TrainConfig,
+    load_train_config,
+)
 
 __all__ = ["ALGORITHMS", "OBSERVATIONS", "TrainConfig", "load_train_config"]

@@ -38,8 +38,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, load_config, read_toml
+from dt_highway.env.actions import (
+    ACCEL_MAX_MPS2,
+    ACCEL_MIN_MPS2,
+    DEFAULT_DISCRETE_ACCELS_MPS2,
+)
 from dt_highway.env.assisted import DEFAULT_SPEEDS_MPS
-from dt_highway.env.actions import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, DEFAULT_DISCRETE_ACCELS_MPS2
 
 OBSERVATIONS = ("kinematics", "adas", "vision")
 ALGORITHMS = ("PPO", "DQN")

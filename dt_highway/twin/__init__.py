@@ -2,7 +2,13 @@
 
 from dt_highway.twin.cloud import CloudTwin, Downlink, TwinVehicleView, TwinView
 from dt_highway.twin.store import FixStore
-from dt_highway.twin.tagger import DriverRecord, HighwayMap, LaneChange, Tagger, posterior_aggressive
+from dt_highway.twin.tagger import (
+    DriverRecord,
+    HighwayMap,
+    LaneChange,
+    Tagger,
+    posterior_aggressive,
+)
 from dt_highway.twin.uplink import GnssFix, Uplink, VehicleState
 
 __all__ = [

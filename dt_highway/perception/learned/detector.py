@@ -13,7 +13,6 @@ from dt_highway.perception.detect import VEHICLE, Detections
 from dt_highway.perception.learned.model import inverse_depth, peaks, to_input
 from dt_highway.perception.learned.weights import load_weights
 
-
 SCALES = ("resize", "native")
 """How frames of another size than the network's input are read"""
 
