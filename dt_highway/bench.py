@@ -3,13 +3,30 @@
 from __future__ import annotations
 
 import contextlib
+import cProfile
 import gc
+import math
 import os
+import tempfile
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
+import cv2
+import gymnasium as gym
+import highway_env  # noqa: F401  (registers highway-v0)
+import numpy as np
+
+from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.config import DTConfig, merge
+from dt_highway.env import DTHighwayEnv, make_camera
+from dt_highway.hmi.drive import DriveOptions, run_drive
+from dt_highway.hmi.keys import KeyScript
+from dt_highway.perception import METHODS, Detections, Fusion, FusionSettings
+from dt_highway.twin.cloud import TwinVehicleView
 
 
 def _rss_mb() -> float:
@@ -38,8 +55,6 @@ def bench_memory(
     :return: samples of RSS [MB], live Python objects, fixes held, driver records, episodes, and the
         growth between the first sample after warm-up and the last one
     """
-    from dt_highway.env import DTHighwayEnv
-
     freq = config.highway.policy_frequency
     steps_per_sample = max(1, int(round(sample_every_min * 60 * freq)))
     n_samples = max(2, int(round(hours * 3600.0 * freq / steps_per_sample)))
@@ -87,13 +102,13 @@ def _one_core() -> Iterator[int | None]:
 
     :return: (as the context value) the CPU, ``None`` where affinity cannot be set
     """
-    import cv2
-
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    before: set[int] | None
+    cpu: int | None
     try:
         before = os.sched_getaffinity(0)
-        cpu: int | None = min(before)
+        cpu = min(before)
         os.sched_setaffinity(0, {cpu})
     except (AttributeError, OSError):
         before, cpu = None, None
@@ -130,12 +145,6 @@ def bench_camera(
 def _bench_camera(
     config: DTConfig, scenes: int, repeats: int, progress: Callable[[int], None] | None, cpu: int | None
 ) -> dict[str, Any]:
-    import numpy as np
-
-    from dt_highway.camera.pinhole import Pose
-    from dt_highway.camera.scene import RoadScene, VehicleSet
-    from dt_highway.env import DTHighwayEnv, make_camera
-
     hw = {"screen_width": 640, "screen_height": 360, "offscreen_rendering": True}
     cfg = merge(config, {"ego": {"autopilot": True}, "highway": hw, "camera": {"enabled": False}})
     env = DTHighwayEnv(config=cfg.to_dict(), render_mode="rgb_array")
@@ -156,12 +165,12 @@ def _bench_camera(
         for _ in range(repeats):
             for (w, h), cam in cams.items():
                 t0 = time.perf_counter()
-                frame = cam.render(Pose(float(ego.position[0]), float(ego.position[1]), float(ego.heading)),
-                                   VehicleSet.from_road(env.road, exclude=ego))
+                _, truth = cam.render(Pose(float(ego.position[0]), float(ego.position[1]), float(ego.heading)),
+                                      VehicleSet.from_road(env.road, exclude=ego))
                 times[f"ours_{w}x{h}"].append(time.perf_counter() - t0)
                 if w == 640:
-                    drawn.append(len(frame.vehicles))
-                    visible.append(sum(v.visible_box is not None for v in frame.vehicles.values()))
+                    drawn.append(len(truth.vehicles))
+                    visible.append(sum(v.visible_box is not None for v in truth.vehicles.values()))
             t0 = time.perf_counter()
             env.render()
             times["highway_env_topdown_640x360"].append(time.perf_counter() - t0)
@@ -202,18 +211,10 @@ def bench_fusion(frames: int = 300, n_vehicles: int = 20, seed: int = 0) -> dict
     :param seed: seed of the scene
     :return: median and p90 time per frame [ms] per method, and the target
     """
-    import math
-
-    import numpy as np
-
-    from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
-    from dt_highway.camera.render import CameraFrame
-    from dt_highway.perception import METHODS, Detections, Fusion, FusionSettings
-    from dt_highway.twin.cloud import TwinVehicleView
-
     with _one_core() as cpu:
         rng = np.random.default_rng(seed)
-        camera = PinholeCamera(Intrinsics.from_fov(640, 360, math.radians(90)), Mount(0.5, 0.0, 1.3, math.radians(3), 0.0))
+        camera = PinholeCamera(Intrinsics.from_fov(640, 360, math.radians(90)),
+                               Mount(0.5, 0.0, 1.3, math.radians(3), 0.0))
         xs = np.sort(rng.uniform(10, 120, n_vehicles))
         ys = rng.choice([0.0, 4.0, 8.0], n_vehicles)
         depth = np.full((360, 640), 200.0, dtype=np.float32)
@@ -224,13 +225,15 @@ def bench_fusion(frames: int = 300, n_vehicles: int = 20, seed: int = 0) -> dict
             for f in range(frames):
                 pose = Pose(0.0, 4.0, 0.0)
                 x = xs + 0.05 * f
-                pts = np.stack([np.stack([x - 2.5, x + 2.5], 1).ravel(), np.repeat(ys, 2), np.full(2 * n_vehicles, 0.0)], 1)
+                pts = np.stack([np.stack([x - 2.5, x + 2.5], 1).ravel(), np.repeat(ys, 2),
+                                np.full(2 * n_vehicles, 0.0)], 1)
                 proj = camera.project(pts, pose)
                 uv = proj.uv_px.reshape(n_vehicles, 2, 2)
                 w_half = 1.0 * camera.intrinsics.fx_px / np.maximum(x - 2.5, 1.0)
-                boxes = np.stack([uv[:, 0, 0] - w_half, uv[:, 0, 1] - 1.5 * w_half, uv[:, 0, 0] + w_half, uv[:, 0, 1]], 1)
+                boxes = np.stack([uv[:, 0, 0] - w_half, uv[:, 0, 1] - 1.5 * w_half, uv[:, 0, 0] + w_half,
+                                  uv[:, 0, 1]], 1)
                 boxes += rng.normal(0, 0.03, boxes.shape) * (2 * w_half)[:, None]
-                frame = CameraFrame(np.zeros((1, 1, 3), np.uint8), depth, np.zeros((1, 1), np.int32), {}, pose)
+                frame = CameraImage(np.zeros((1, 1, 3), np.uint8), depth, pose)
                 twin = [TwinVehicleView(i + 1, 0.0, float(x[i] + rng.normal(0, 1)), float(ys[i] + rng.normal(0, 1)),
                                         25.0, 0.0, "normal", 0.9, 0, 60.0) for i in range(n_vehicles)]
                 dets = Detections.of(boxes)
@@ -267,14 +270,6 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
         time, simulated over wall time (1.0: the simulation kept real time), targets and whether
         they are met
     """
-    import tempfile
-    from pathlib import Path
-
-    import numpy as np
-
-    from dt_highway.hmi.drive import DriveOptions, run_drive
-    from dt_highway.hmi.keys import KeyScript
-
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     with tempfile.TemporaryDirectory() as tmp:
         opts = DriveOptions(
@@ -317,11 +312,10 @@ def bench_detector(weights: str | None = None, batch: int = 32, seconds: float =
     :param height_px: frame height [px]
     :return: frames/s batched, single-frame latency median/p90/p99 [ms], the settings
     """
-    import numpy as np
-    import torch
+    import torch  # lazy: torch takes ~1.3 s to import; only this benchmark needs it
 
-    from dt_highway.perception.learned.data import SceneSettings, make_frame
-    from dt_highway.perception.learned.detector import LearnedDetector
+    from dt_highway.perception.learned.data import SceneSettings, make_frame  # lazy: loads torch's detector stack
+    from dt_highway.perception.learned.detector import LearnedDetector  # lazy: imports torch
 
     torch.set_num_threads(threads)
     det = LearnedDetector(weights)
@@ -336,7 +330,7 @@ def bench_detector(weights: str | None = None, batch: int = 32, seconds: float =
         det.detect_batch(rgbs, depths)
         n += batch
     batched_fps = n / (time.perf_counter() - t0)
-    lat = []
+    lat: list[float] = []  # [ms]
     t0 = time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         i = len(lat) % batch
@@ -347,7 +341,8 @@ def bench_detector(weights: str | None = None, batch: int = 32, seconds: float =
     return {
         "frames_per_s_batched": round(batched_fps, 1),
         "batch": batch,
-        "single_frame_ms": {"median": round(float(np.median(lat_a)), 2), "p90": round(float(np.percentile(lat_a, 90)), 2),
+        "single_frame_ms": {"median": round(float(np.median(lat_a)), 2),
+                            "p90": round(float(np.percentile(lat_a, 90)), 2),
                             "p99": round(float(np.percentile(lat_a, 99)), 2)},
         "single_frame_fps": round(1000.0 / float(np.median(lat_a)), 1),
         "image_px": [width_px, height_px],
@@ -363,7 +358,7 @@ SIM_SCENARIO = {"vehicles_count": 50, "lanes_count": 4, "simulation_frequency": 
 """highway-v0's scenario: 50 vehicles, 4 lanes, 15 Hz physics, one decision per second"""
 
 
-def _steps_per_s(env: Any, seed: int, steps: int, action: int = 1) -> float:
+def _steps_per_s(env: gym.Env, seed: int, steps: int, action: int = 1) -> float:
     """Time ``steps`` env steps (the ego keeps ``action``; a crash does not stop the clock) [steps/s]."""
     env.reset(seed=seed)
     t0 = time.perf_counter()
@@ -391,12 +386,6 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
     :param profile: write a cProfile of one run of our default env to this file
     :return: steps/s per env, ratios to stock, the deviation [m], the ADAS pipeline's step time
     """
-    import gymnasium as gym
-    import highway_env  # noqa: F401  (registers highway-v0)
-    import numpy as np
-
-    from dt_highway.env import DTHighwayEnv
-
     hw = {**SIM_SCENARIO, "duration": 10_000}
     ours_hw = {**hw, "road_length": 10_000.0}
     envs: dict[str, Any] = {
@@ -410,8 +399,6 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
     for name, env in envs.items():
         rates[name] = max(_steps_per_s(env, seed, steps) for _ in range(repeats))
     if profile:
-        import cProfile
-
         prof = cProfile.Profile()
         prof.enable()
         _steps_per_s(envs["ours_driver_types"], seed, steps)

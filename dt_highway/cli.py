@@ -8,22 +8,46 @@ input (no traceback for a user's mistake).
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import re
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn, TypedDict
 
-from dt_highway.config import ConfigError, DTConfig, load_config, merge
+import gymnasium as gym
+from tqdm import tqdm
+
+from dt_highway._version import __version__
+from dt_highway.bench import bench_camera, bench_detector, bench_drive, bench_fusion, bench_memory, bench_sim
+from dt_highway.conditions import condition_config
+from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config, merge
+from dt_highway.drivers import load_driver
+from dt_highway.env.seat import DriverSeat
+from dt_highway.evaluation.frames import record_frames
+from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+from dt_highway.evaluation.rl import evaluate as evaluate_driver
+from dt_highway.evaluation.twin import episode_steps, evaluate_twin
+from dt_highway.hmi.drive import DriveOptions, run_drive
+from dt_highway.hmi.keys import KeyScript, KeyScriptError
+from dt_highway.hmi.session import condition_order, run_session
 from dt_highway.jsonio import dump_json
+from dt_highway.rl.config import load_train_config
+from dt_highway.rl.files import sidecar_path
+from dt_highway.study import find_file, freeze_inputs, plan, run_study
+
+# Heavy modules are imported by the commands that need them, so that ``dt-highway --help`` and
+# the light commands start fast: the report (scipy.stats), the learned detector (torch) and RL
+# training (stable-baselines3 and torch).
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse, but a mistake is reported in one line (with a pointer to ``--help``)."""
 
-    def error(self, message: str) -> Any:
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
@@ -43,7 +67,8 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--participant", required=True, help="participant id, e.g. P01")
     p.add_argument("--duration", type=_positive(float, "--duration"), help="trial length [s] (default: the scenario's)")
     p.add_argument("--seed", type=_seed, default=0, help="traffic seed (default 0)")
-    p.add_argument("--keys-from", metavar="FILE", help="replay a key script ('0.5 down UP' lines) instead of the keyboard")
+    p.add_argument("--keys-from", metavar="FILE",
+                   help="replay a key script ('0.5 down UP' lines) instead of the keyboard")
     p.add_argument("--screenshot-every", type=_positive(float, "--screenshot-every"), metavar="S",
                    help="save what the participant sees every S seconds of trial time")
     p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
@@ -66,14 +91,12 @@ def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DT
     return load_config(args.scenario, args.overrides, extra)
 
 
-def _progress(total: int, desc: str, quiet: bool, unit: str = "step") -> Any:
-    from tqdm import tqdm
-
+def _progress(total: int, desc: str, quiet: bool, unit: str = "step") -> tqdm:
     return tqdm(total=total, desc=desc, unit=unit, disable=quiet, file=sys.stderr, leave=False)
 
 
-def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
-    def parse(text: str) -> Any:
+def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
         try:
             value = kind(text)
         except ValueError:
@@ -87,8 +110,6 @@ def _positive(kind: Callable[[str], Any], name: str) -> Callable[[str], Any]:
 
 # ----------------------------------------------------------------------------- twin-eval
 def cmd_twin_eval(args: argparse.Namespace) -> int:
-    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
-
     cfg = _config(args)
     steps = args.episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
@@ -98,7 +119,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     else:
         r = result
         print(
-            f"precision {r['precision']:.3f}  recall {r['recall']:.3f}  median time to tag {r['median_time_to_tag_s']:.1f} s"
+            f"precision {r['precision']:.3f}  recall {r['recall']:.3f}  "
+            f"median time to tag {r['median_time_to_tag_s']:.1f} s"
             f"  (aggressive {r['n_aggressive']}, normal {r['n_normal']}, episodes {r['episodes']}, seed {r['seed']})"
         )
     if args.out:
@@ -112,8 +134,6 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
     """Headless episodes with the twin: what the ego receives, and how the tags compare."""
-    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
-
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -137,14 +157,21 @@ def cmd_run(args: argparse.Namespace) -> int:
 STUDY_SCENARIO = "envs/highway-trial.toml"
 EVAL_SCENARIO = "envs/highway-trial.toml"
 """The study's default scenario: the paper's trial highway (section IV-C)"""
-QUICK = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
+
+
+class _QuickStudy(TypedDict):
+    driver: str
+    trials: int
+    duration_s: float
+
+
+QUICK: _QuickStudy = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
 """The README's main job: a small paired study with the human-like driver"""
 
 
 def cmd_study(args: argparse.Namespace) -> int:
     """A paired study of one driver in several conditions, then (with --quick) its report."""
-    from dt_highway.report import write_report
-    from dt_highway.study import find_file, freeze_inputs, plan, run_study
+    from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
@@ -159,31 +186,25 @@ def cmd_study(args: argparse.Namespace) -> int:
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     # bad driver files and configurations fail here, once, rather than in every trial
-    from dt_highway.drivers import load_driver
-
     drv = load_driver(driver)
     load_config(scenario, overrides)
     if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
-        import gymnasium as gym
-
-        from dt_highway.conditions import condition_config
-        from dt_highway.config import deep_merge
-
         for condition in conditions:
             cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
             env = gym.make("dt-highway-v0", config=cfg.to_dict())
             try:
-                drv.reset(env.unwrapped, 0)
+                DriverSeat(env.unwrapped, drv.senses)  # its observation can be made of this env
+                drv.reset(0)  # and its action menu is its network's
             finally:
                 env.close()
     specs = plan(out, driver, conditions, trials, args.seed, scenario, overrides, parquet=args.parquet)
     if args.parquet:
         try:
-            import pyarrow  # noqa: F401
+            import pyarrow  # lazy: optional extra (pip install dt-highway[parquet]) # noqa: F401
         except ImportError:
             raise ConfigError("--parquet needs pyarrow: pip install 'dt-highway[parquet]'") from None
-    driver, scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
-    specs = [replace(s, driver=driver, scenario=scenario) for s in specs]
+    frozen_driver, frozen_scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
+    specs = [replace(s, driver=frozen_driver, scenario=frozen_scenario) for s in specs]
     t0 = time.perf_counter()
     with _progress(len(specs), "study", args.quiet, unit="trial") as bar:
 
@@ -203,8 +224,6 @@ def cmd_study(args: argparse.Namespace) -> int:
 
 
 def _print_summary(path: Path) -> None:
-    import json
-
     s = json.loads(path.read_text())
     for cond, c in s["conditions"].items():
         sv, ttc = c["speed_variance_kmh2"], c["ttc_mean_s"]
@@ -215,8 +234,6 @@ def _print_summary(path: Path) -> None:
 
 def cmd_drive(args: argparse.Namespace) -> int:
     """One keyboard trial in the driving window."""
-    from dt_highway.hmi.drive import run_drive
-
     opts = _drive_options(args, args.condition)
     result = run_drive(opts)
     print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
@@ -224,11 +241,8 @@ def cmd_drive(args: argparse.Namespace) -> int:
     return 0 if result["status"] == "completed" else 1
 
 
-def _drive_options(args: argparse.Namespace, condition: str) -> Any:
+def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
     """The options of a keyboard trial from the command line (drive and session)."""
-    from dt_highway.hmi.drive import DriveOptions
-    from dt_highway.hmi.keys import KeyScript, KeyScriptError
-
     try:
         script = KeyScript.load(args.keys_from) if args.keys_from else None
     except KeyScriptError as err:
@@ -245,8 +259,6 @@ def _drive_options(args: argparse.Namespace, condition: str) -> Any:
 
 def cmd_session(args: argparse.Namespace) -> int:
     """A participant's session: practice, both conditions counterbalanced, breaks between."""
-    from dt_highway.hmi.session import condition_order, run_session
-
     base = _drive_options(args, "baseline")
     order = condition_order(base.participant)
     print(f"session of {base.participant} in {base.out}: practice, then {order[0]} and {order[1]}")
@@ -258,8 +270,6 @@ def cmd_session(args: argparse.Namespace) -> int:
 
 def _participant(text: str) -> str:
     """A participant id: letters, digits, '-' and '_' (it names directories)."""
-    import re
-
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", text or ""):
         raise ConfigError(f"--participant must be 1-64 letters, digits, '-' or '_' (got {text!r})")
     return text
@@ -267,7 +277,7 @@ def _participant(text: str) -> str:
 
 def cmd_report(args: argparse.Namespace) -> int:
     """The safety-metrics report of a study directory."""
-    from dt_highway.report import write_report
+    from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
 
     try:
         files = write_report(args.study)
@@ -281,8 +291,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- camera
 def cmd_camera(args: argparse.Namespace) -> int:
     """Sample frames of the ego camera as PNGs."""
-    from dt_highway.evaluation.frames import record_frames
-
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
@@ -300,13 +308,6 @@ def cmd_camera(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- matching
 def cmd_matching(args: argparse.Namespace) -> int:
     """The target-identification benchmark (paper Fig. 6)."""
-    from dt_highway.evaluation.matching import (
-        run_matching,
-        run_sweep,
-        write_outputs,
-        write_sweep,
-    )
-
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -331,7 +332,8 @@ def cmd_matching(args: argparse.Namespace) -> int:
         for m, v in summ["methods"].items():
             print(f"  {m:9s} {v['acc_iou70']:.3f} / {v['acc_iou70_tricky']:.3f}")
     if len(kinds) > 1:
-        (out / "detectors.json").write_text(dump_json({"frames": args.frames, "seed": args.seed, "accuracy": table}) + "\n")
+        comparison = {"frames": args.frames, "seed": args.seed, "accuracy": table}
+        (out / "detectors.json").write_text(dump_json(comparison) + "\n")
         print(f"wrote {', '.join(kinds)} results to {out}/<detector>/ and the comparison to {out / 'detectors.json'}")
     written = "curve.csv, summary.json, frames.csv, curve.png"
     if args.sweep:
@@ -347,8 +349,6 @@ def cmd_matching(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- bench
 def cmd_bench_camera(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_camera
-
     cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
         result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
@@ -358,15 +358,14 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
         med = result["median_ms"]
         print(f"median frame time, one core: ours 640x360 {med['ours_640x360']:.2f} ms, ours 320x180 "
               f"{med['ours_320x180']:.2f} ms ({result['fps_ours_320x180']:.0f} frames/s), highway-env top-down "
-              f"640x360 {med['highway_env_topdown_640x360']:.2f} ms; ratio {result['ratio_ours_640x360_to_highway_env']:.2f}"
+              f"640x360 {med['highway_env_topdown_640x360']:.2f} ms; "
+              f"ratio {result['ratio_ours_640x360_to_highway_env']:.2f}"
               f" ({result['vehicles_drawn_per_frame_median']:.0f} vehicles drawn per frame); "
               f"targets {'met' if result['targets_met'] else 'NOT met'}")
     return 0
 
 
 def cmd_bench_fusion(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_fusion
-
     result = bench_fusion(args.frames, args.boxes)
     if args.json:
         print(dump_json(result))
@@ -378,8 +377,6 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_drive(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_drive
-
     result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
                          find_file_or_default(args.scenario), list(args.overrides))
     if args.json:
@@ -388,7 +385,8 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
         f = result["frame_ms"]
         print(f"driving window {result['size_px'][0]}x{result['size_px'][1]}, {result['vehicles']} vehicles, "
               f"{result['condition']}: {result['frames']} frames in {result['wall_s']:g} s ({result['fps']} FPS), "
-              f"{result['sim_s']:g} s simulated (real-time factor {result['realtime_factor']}, {result['end_reason']}); "
+              f"{result['sim_s']:g} s simulated (real-time factor {result['realtime_factor']}, "
+              f"{result['end_reason']}); "
               f"frame time median {f['median']} ms, p90 {f['p90']} ms, p99 {f['p99']} ms, max {f['max']} ms "
               f"(targets p99 <= {result['target_p99_ms']:g} ms and >= 30 FPS: "
               f"{'met' if result['target_met'] else 'NOT met'})")
@@ -397,14 +395,10 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
 
 def find_file_or_default(scenario: str | None) -> str:
     """The scenario given, or the study's default one (``envs/highway-trial.toml``)."""
-    from dt_highway.study import find_file
-
     return find_file(scenario or STUDY_SCENARIO, "envs")
 
 
 def cmd_bench_memory(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_memory
-
     cfg = _config(args)
     steps = int(args.hours * 3600 * cfg.highway.policy_frequency)
     with _progress(steps, "bench memory", args.quiet or args.json) as bar:
@@ -431,10 +425,8 @@ def _weights_arg(path: str | None) -> str | None:
 
 def cmd_detector_train(args: argparse.Namespace) -> int:
     """Train the learned detector (resumes from <out>.ckpt)."""
-    from tqdm import tqdm
-
-    from dt_highway.perception.learned.model import Architecture
-    from dt_highway.perception.learned.train import TrainSettings, train
+    from dt_highway.perception.learned.model import Architecture  # lazy: torch (~1.3 s)
+    from dt_highway.perception.learned.train import TrainSettings, train  # lazy: torch
 
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
@@ -466,7 +458,7 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
           f"last loss {result['last_losses'].get('loss', float('nan')):.3f}")
     print(f"wrote {result['weights']} (checkpoint {result['checkpoint']})")
     if args.eval_frames:
-        from dt_highway.evaluation.detector import EVAL_SEED
+        from dt_highway.evaluation.detector import EVAL_SEED  # lazy: torch
 
         args.weights, args.frames, args.json, args.seed = str(out), args.eval_frames, False, EVAL_SEED
         return cmd_detector_eval(args)
@@ -475,8 +467,8 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
 
 def cmd_detector_eval(args: argparse.Namespace) -> int:
     """AP of the learned detector on held-out frames."""
-    from dt_highway.evaluation.detector import evaluate
-    from dt_highway.perception.learned.detector import LearnedDetector
+    from dt_highway.evaluation.detector import evaluate  # lazy: torch (~1.3 s)
+    from dt_highway.perception.learned.detector import LearnedDetector  # lazy: torch
 
     try:
         det = LearnedDetector(_weights_arg(args.weights), min_score=args.min_score, scale=args.scale)
@@ -502,15 +494,14 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
               f"{result['ignored_vehicles']} ignored")
         print(f"AP {result['AP']:.3f}  AP50 {result['AP50']:.3f}  AP75 {result['AP75']:.3f}  "
               f"recall@IoU0.7 {result['recall_iou07']:.3f} (at score >= {result['operating_score']}: "
-              f"{result['recall_iou07_at_operating_score']:.3f}, precision {result['precision_iou07_at_operating_score']:.3f})")
+              f"{result['recall_iou07_at_operating_score']:.3f}, "
+              f"precision {result['precision_iou07_at_operating_score']:.3f})")
     return 0
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an RL driver with stable-baselines3."""
-    from dt_highway.rl.config import load_train_config
-    from dt_highway.rl.files import sidecar_path
-    from dt_highway.rl.train import train
+    from dt_highway.rl.train import train  # lazy: stable-baselines3 and torch (~1.3 s)
 
     cfg = load_train_config(args.config)
     out = Path(args.out)
@@ -523,24 +514,23 @@ def cmd_train(args: argparse.Namespace) -> int:
                  progress=not args.quiet)
     last = meta["evaluations"][-1] if meta["evaluations"] else None
     print(f"trained {cfg.algorithm} ({cfg.observation}, {cfg.action}) for {meta['timesteps_done']} steps in "
-          f"{meta['wall_time_s']:.0f} s ({meta['steps_per_s']} steps/s)" + (" - interrupted" if meta["interrupted"] else ""))
+          f"{meta['wall_time_s']:.0f} s ({meta['steps_per_s']} steps/s)"
+          + (" - interrupted" if meta["interrupted"] else ""))
     if last:
         print(f"last evaluation ({cfg.eval_episodes} held-out episodes at {last['timesteps']} steps): "
               f"mean return {last['mean_return']:.2f}, mean length {last['mean_length']:.0f} decisions, "
               f"collision rate {last['collision_rate']:.2f}")
-    print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), checkpoints and logs in {meta['checkpoints']}")
+    print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), "
+          f"checkpoints and logs in {meta['checkpoints']}")
     return 130 if meta["interrupted"] else 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
-    from dt_highway.drivers import load_driver
-    from dt_highway.evaluation.rl import evaluate
-
     scenario = args.scenario or EVAL_SCENARIO
     driver = load_driver(args.driver)  # mistakes in the driver or the scenario: one line, before the bar
     load_config(scenario, args.overrides)
-    bars: list[Any] = []  # the bar appears once the env accepted the driver (else the error stands alone)
+    bars: list[tqdm] = []  # the bar appears once the env accepted the driver (else the error stands alone)
 
     def progress(n: int) -> None:
         if not bars:
@@ -548,7 +538,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         bars[0].update(n)
 
     try:
-        result = evaluate(args.driver, args.episodes, args.seed, scenario, args.condition, tuple(args.overrides),
+        result = evaluate_driver(args.driver, args.episodes, args.seed, scenario, args.condition, tuple(args.overrides),
                           progress=progress, driver=driver)
     finally:
         for bar in bars:
@@ -588,29 +578,27 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_bench_sim(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_sim
-
     result = bench_sim(args.steps, args.seed, args.deviation_s, args.repeats, args.profile)
     if args.json:
         print(dump_json(result))
     else:
         r, q = result["steps_per_s"], result["ratio_to_stock"]
-        print(f"env steps/s (50 vehicles, 15 Hz, 1 decision/s): stock highway-v0 {r['stock_highway_v0']}, ours plain IDM "
+        print(f"env steps/s (50 vehicles, 15 Hz, 1 decision/s): stock highway-v0 {r['stock_highway_v0']}, "
+              "ours plain IDM "
               f"{r['ours_plain_idm']} (x{q['ours_plain_idm']}), ours with driver types {r['ours_driver_types']} "
               f"(x{q['ours_driver_types']}), ours with the ADAS pipeline {r['ours_adas_pipeline']} "
               f"({result['adas_step_ms']} ms per step; stock {result['stock_step_ms']} ms)")
         dev = result["max_deviation_m"]
         print(f"deviation from stock over {result['deviation_sim_s']:g} s simulated (plain IDM traffic): "
               + (f"{dev:.3g} m" if dev is not None else "vehicle counts differ"))
-        print(f"target x{result['target_ratio']:g} and ADAS step <= stock step: {'met' if result['target_met'] else 'NOT met'}")
+        met = "met" if result["target_met"] else "NOT met"
+        print(f"target x{result['target_ratio']:g} and ADAS step <= stock step: {met}")
         if args.profile:
             print(f"wrote {args.profile}")
     return 0
 
 
 def cmd_bench_detector(args: argparse.Namespace) -> int:
-    from dt_highway.bench import bench_detector
-
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
     except (FileNotFoundError, ValueError) as exc:
@@ -622,13 +610,22 @@ def cmd_bench_detector(args: argparse.Namespace) -> int:
         print(f"learned detector {result['image_px'][0]}x{result['image_px'][1]}, {result['threads']} threads: "
               f"{result['frames_per_s_batched']} frames/s batched ({result['batch']} per call); one frame "
               f"median {s['median']} ms, p90 {s['p90']} ms, p99 {s['p99']} ms")
-        print(f"target >= {result['target_frames_per_s']} frames/s batched: {'met' if result['target_met'] else 'NOT met'}")
+        met = "met" if result["target_met"] else "NOT met"
+        print(f"target >= {result['target_frames_per_s']} frames/s batched: {met}")
     return 0
 
 # ----------------------------------------------------------------------------- main
-def build_parser() -> argparse.ArgumentParser:
-    from dt_highway import __version__
+def _show_help(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace], int]:
+    """A command that prints ``parser``'s help and returns status 2 (a command group given no action)."""
 
+    def show(_: argparse.Namespace) -> int:
+        parser.print_help()
+        return 2
+
+    return show
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="dt-highway",
         description="Highway driving with a cloud digital twin that tags aggressive drivers (highway-env extension).",
@@ -685,7 +682,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first pair; pair i uses seed + i (default 0)")
     p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
     p.add_argument("--out", help="study directory, e.g. runs/<name> (--quick: runs/quick-study)")
-    p.add_argument("--backend", choices=("process", "ray"), default="process", help="process pool (default) or Ray tasks")
+    p.add_argument("--backend", choices=("process", "ray"), default="process",
+                   help="process pool (default) or Ray tasks")
     p.add_argument("--ray-address", help="address of an existing Ray cluster")
     p.add_argument("--quick", action="store_true", help="a small study with the human-like driver, then its report")
     p.add_argument("--report", action="store_true", help="write the report when the study is done")
@@ -722,7 +720,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p, EVAL_SCENARIO)
     p.add_argument("--driver", required=True, help="agents/<name>.zip or agents/<driver>.toml")
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=10, help="episodes (default 10)")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode; episode i uses seed + i (default 0)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="seed of the first episode; episode i uses seed + i (default 0)")
     p.add_argument("--condition", choices=("baseline", "adas"), default="adas",
                    help="with the ADAS overlay or without (default adas)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -737,19 +736,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     det = sub.add_parser("detector", help="the learned vehicle detector: train it, evaluate it")
     dsub = det.add_subparsers(dest="detector", metavar="ACTION")
-    det.set_defaults(func=lambda a: (det.print_help(), 2)[1])
+    det.set_defaults(func=_show_help(det))
     p = dsub.add_parser("train", help="train on frames the camera renders on the fly (CPU; resumes from <out>.ckpt)")
     p.add_argument("--out", required=True, help="weights file to write, e.g. runs/detector.pt")
-    p.add_argument("--minutes", type=_positive(float, "--minutes"), default=30.0, help="training time [min] (default 30)")
+    p.add_argument("--minutes", type=_positive(float, "--minutes"), default=30.0,
+                   help="training time [min] (default 30)")
     p.add_argument("--depth", action="store_true", help="inverse depth as a fourth input channel")
-    p.add_argument("--width", type=_positive(int, "--width"), default=320, help="network input width [px] (default 320)")
-    p.add_argument("--height", type=_positive(int, "--height"), default=180, help="network input height [px] (default 180)")
+    p.add_argument("--width", type=_positive(int, "--width"), default=320,
+                   help="network input width [px] (default 320)")
+    p.add_argument("--height", type=_positive(int, "--height"), default=180,
+                   help="network input height [px] (default 180)")
     p.add_argument("--batch", type=_positive(int, "--batch"), default=32, help="images per step (default 32)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of replay choices (default 0)")
     p.add_argument("--max-steps", type=_positive(int, "--max-steps"), help="stop after this many steps")
     p.add_argument("--fresh", action="store_true",
                    help="start over instead of resuming from <out>.ckpt (replaces it and <out> when training ends)")
-    p.add_argument("--eval-frames", type=_positive(int, "--eval-frames"), help="evaluate on this many held-out frames after")
+    p.add_argument("--eval-frames", type=_positive(int, "--eval-frames"),
+                   help="evaluate on this many held-out frames after")
     p.add_argument("--min-score", type=_score, default=0.3, help=argparse.SUPPRESS)
     p.add_argument("--scale", default="resize", help=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -759,7 +762,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive(int, "--frames"), default=500, help="held-out frames (default 500)")
     p.add_argument("--seed", type=_seed, default=0, help="first frame seed (default 0)")
     p.add_argument("--size", type=_size, help="frame size WxH (default: the network's, 320x180)")
-    p.add_argument("--min-score", type=_score, default=0.3, help="operating score for recall/precision, in (0, 1] (default 0.3)")
+    p.add_argument("--min-score", type=_score, default=0.3,
+                   help="operating score for recall/precision, in (0, 1] (default 0.3)")
     p.add_argument("--scale", choices=("resize", "native"), default="resize",
                    help="frames of another size: resized to the network's (default) or read as they are")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -769,7 +773,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="benchmarks that print numbers")
     bsub = bench.add_subparsers(dest="bench", metavar="BENCH")
-    bench.set_defaults(func=lambda a: (bench.print_help(), 2)[1])
+    bench.set_defaults(func=_show_help(bench))
     p = bsub.add_parser("camera", help="our camera vs highway-env's top-down render, 50 vehicles, one core")
     _add_config_args(p)
     p.add_argument("--scenes", type=_positive(int, "--scenes"), default=60, help="scenes (policy steps, default 60)")
@@ -780,7 +784,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench_camera)
     p = bsub.add_parser("drive", help="frame times of the driving window, headless (640x360, 50 vehicles, ADAS)")
     _add_config_args(p, STUDY_SCENARIO)
-    p.add_argument("--duration", type=_positive(float, "--duration"), default=20.0, help="seconds of driving (default 20)")
+    p.add_argument("--duration", type=_positive(float, "--duration"), default=20.0,
+                   help="seconds of driving (default 20)")
     p.add_argument("--vehicles", type=_positive(int, "--vehicles"), default=50, help="vehicles (default 50)")
     p.add_argument("--width", type=_positive(int, "--width"), default=640, help="window width [px] (default 640)")
     p.add_argument("--height", type=_positive(int, "--height"), default=360, help="window height [px] (default 360)")
@@ -790,13 +795,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench_drive)
     p = bsub.add_parser("fusion", help="time of one frame's fusion (Alg. 1 + 2 + tracking) per method, one core")
     p.add_argument("--frames", type=_positive(int, "--frames"), default=300, help="frames per method (default 300)")
-    p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20, help="boxes and twin vehicles per frame (default 20)")
+    p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20,
+                   help="boxes and twin vehicles per frame (default 20)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_fusion)
     p = bsub.add_parser("detector", help="frames/s of the learned detector, batched, and one frame's latency")
     p.add_argument("--weights", help="weights file (default: the shipped weights)")
     p.add_argument("--batch", type=_positive(int, "--batch"), default=32, help="frames per call (default 32)")
-    p.add_argument("--seconds", type=_positive(float, "--seconds"), default=10.0, help="time per measurement [s] (default 10)")
+    p.add_argument("--seconds", type=_positive(float, "--seconds"), default=10.0,
+                   help="time per measurement [s] (default 10)")
     p.add_argument("--threads", type=_positive(int, "--threads"), default=2, help="torch threads (default 2)")
     p.add_argument("--size", type=_size, default=(320, 180), help="frame size WxH (default 320x180)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -806,7 +813,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="reset seed (default 0)")
     p.add_argument("--deviation-s", type=_positive(float, "--deviation-s"), default=30.0,
                    help="simulated seconds of the stock-vs-ours deviation run (default 30)")
-    p.add_argument("--repeats", type=_positive(int, "--repeats"), default=1, help="measurements per env, best kept (default 1)")
+    p.add_argument("--repeats", type=_positive(int, "--repeats"), default=1,
+                   help="measurements per env, best kept (default 1)")
     p.add_argument("--profile", metavar="FILE", help="also write a cProfile of our env (driver types) to FILE")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_sim)

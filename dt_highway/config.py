@@ -12,6 +12,12 @@ dotted key and what is allowed.
 The ``highway`` section holds highway-env's own configuration keys with their usual
 meaning; for convenience those keys are also accepted at the top level of a dict, as a
 highway-env user would write them (``config={"lanes_count": 3}``).
+
+The components' settings (:class:`FrozenSettings`: the simulated detector's error model, the
+fusion's and the renderer's settings) take the defaults and ranges of the values a user sets
+from these sections (:func:`section_field`). The files in ``agents/`` (driver and training
+files) have their models in :mod:`dt_highway.agent_config`, with the same error path
+(:func:`config_error`).
 """
 
 from __future__ import annotations
@@ -19,9 +25,20 @@ from __future__ import annotations
 import copy
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+_S = TypeVar("_S", bound=BaseModel)
 
 
 class ConfigError(ValueError):
@@ -32,6 +49,39 @@ class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, assignment is validated."""
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+
+class FrozenSettings(BaseModel):
+    """Base of the settings objects the components take (a driver's parameters, the simulated
+    detector's error model, the fusion's and the renderer's settings): unknown keys are errors,
+    values are checked when the object is made and cannot change afterwards."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def section_field(section: type[BaseModel], name: str) -> Any:
+    """One field of a config section (its default, range and description), for a settings
+    model that takes that value from the section: the default and the range stay written once,
+    in the section (``th: float = section_field(FusionConfig, "th")``).
+
+    :param section: the config section model (:class:`FusionConfig`)
+    :param name: the field's name
+    :return: a copy of the section's field definition
+    """
+    return copy.deepcopy(section.model_fields[name])
+
+
+HIGHWAY_ENV_OBSERVATION_TYPES = (
+    "TimeToCollision", "Kinematics", "OccupancyGrid", "KinematicsGoal", "GrayscaleObservation",
+    "AttributesObservation", "MultiAgentObservation", "TupleObservation", "LidarObservation", "ExitObservation",
+)
+"""Observation types of highway-env 1.12's ``observation_factory``"""
+HIGHWAY_ENV_ACTION_TYPES = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction", "MultiAgentAction")
+"""Action types of highway-env 1.12's ``action_factory``"""
+OBSERVATION_TYPES = (*HIGHWAY_ENV_OBSERVATION_TYPES, "Camera", "OverlayKinematics")
+"""Every ``highway.observation.type``: highway-env's and ours (:mod:`dt_highway.env.observations`)"""
+ACTION_TYPES = (*HIGHWAY_ENV_ACTION_TYPES, "Driver", "DiscreteDriver")
+"""Every ``highway.action.type``: highway-env's and ours (:mod:`dt_highway.env.actions`)"""
 
 
 # ----------------------------------------------------------------------------- highway-env
@@ -67,6 +117,17 @@ class HighwayConfig(_Section):
     offscreen_rendering: bool | None = None
     manual_control: bool = False
     real_time_rendering: bool = False
+
+    @field_validator("observation", "action")
+    @classmethod
+    def _known_type(cls, table: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        allowed = OBSERVATION_TYPES if info.field_name == "observation" else ACTION_TYPES
+        if "type" in table and table["type"] not in allowed:
+            raise PydanticCustomError(
+                "unknown_type", "not a highway-env or dt-highway {what} type (allowed: {allowed})",
+                {"key": "type", "got": table["type"], "what": info.field_name, "allowed": ", ".join(allowed)},
+            )
+        return table
 
     @model_validator(mode="after")
     def _consistent(self) -> HighwayConfig:
@@ -350,11 +411,16 @@ class DetectorConfig(_Section):
         return self
 
 
+FusionMethod = Literal["baseline", "fusion", "joint", "tracked"]
+"""The fusion's matching methods (:mod:`dt_highway.perception.fusion`)"""
+FUSION_METHODS: tuple[str, ...] = get_args(FusionMethod)
+
+
 class FusionConfig(_Section):
     """Camera + twin fusion and the ADAS output (:mod:`dt_highway.perception.fusion`)."""
 
     enabled: bool = Field(False, description="run detector and fusion every step; overlay items in info['adas']")
-    method: Literal["baseline", "fusion", "joint", "tracked"] = Field("tracked", description="matching method")
+    method: FusionMethod = Field("tracked", description="matching method")
     th: float = Field(0.2, ge=0, lt=1, description="Algorithm 1: box resize threshold [-]")
     n_samples: int = Field(20, ge=1, le=10000, description="Algorithm 1: sample points per box [-]")
     fallback: Literal["none", "nearest"] = Field("none", description="Algorithm 2 when no box holds the anchor")
@@ -402,9 +468,9 @@ SECTIONS = tuple(DTConfig.model_fields)
 
 
 # ----------------------------------------------------------------------------- errors
-def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+def _model_at(loc: tuple[Any, ...], root: type[BaseModel] = DTConfig) -> type[BaseModel] | None:
     """The section model found by following ``loc`` from the root, if it is one."""
-    model: type[BaseModel] = DTConfig
+    model: type[BaseModel] = root
     for part in loc:
         field = model.model_fields.get(str(part))
         if field is None:
@@ -417,12 +483,12 @@ def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
     return model
 
 
-def _describe(err: dict[str, Any]) -> str:
-    loc = tuple(err["loc"])
+def _describe(err: Any, root: type[BaseModel] = DTConfig, skip: int = 0, at: tuple[str, ...] = ()) -> str:
+    loc = at + tuple(err["loc"])[skip:]
     dotted = ".".join(str(p) for p in loc) or "<root>"
     kind = err["type"]
     if kind == "extra_forbidden":
-        parent = _model_at(loc[:-1])
+        parent = _model_at(loc[:-1], root)
         allowed = ", ".join(parent.model_fields) if parent else "?"
         return f"unknown key '{dotted}' (allowed here: {allowed})"
     value = err.get("input")
@@ -431,6 +497,8 @@ def _describe(err: dict[str, Any]) -> str:
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
     ctx = err.get("ctx") or {}
+    if "key" in ctx:  # one key of a free-form table: highway.observation.type
+        return f"{dotted}.{ctx['key']} = {ctx['got']!r}: {msg}"
     if kind in {"greater_than_equal", "greater_than", "less_than_equal", "less_than"}:
         op = {"greater_than_equal": ">=", "greater_than": ">", "less_than_equal": "<=", "less_than": "<"}[kind]
         bound = next(iter(ctx.values()), "?")
@@ -442,9 +510,39 @@ def _describe(err: dict[str, Any]) -> str:
     return f"{dotted} = {shown}: {msg}"
 
 
+def config_error(
+    exc: ValidationError, root: type[BaseModel] = DTConfig, prefix: str = "invalid configuration: ", skip: int = 0
+) -> ConfigError:
+    """The one-line :class:`ConfigError` of a failed validation: every mistake with its dotted
+    key and what is allowed, joined by ``"; "``.
+
+    :param exc: pydantic's error
+    :param root: the model validated (where dotted keys start)
+    :param prefix: put before the mistakes (the file or the tree they are in)
+    :param skip: leading parts of each error's location to leave out (a tagged union's tag)
+    :return: the error to raise (``raise config_error(exc) from None``)
+    """
+    return ConfigError(prefix + "; ".join(_describe(e, root, skip) for e in exc.errors()))
+
+
 def _raise_config_error(exc: ValidationError) -> None:
-    parts = [_describe(e) for e in exc.errors()]
-    raise ConfigError("invalid configuration: " + "; ".join(parts)) from None
+    raise config_error(exc) from None
+
+
+def validate_section(section: type[_S], where: str, **values: Any) -> _S:
+    """A config section made from keyword values, refused with the tree's one-line error (for a
+    component that takes a section's values as arguments: the overlay's stabiliser).
+
+    :param section: the section model (:class:`OverlayConfig`)
+    :param where: its dotted key in the tree (``"overlay"``)
+    :param values: its values; missing ones take the section's defaults
+    :raises ConfigError: naming ``where.key`` and what is allowed
+    """
+    try:
+        return section.model_validate(values)
+    except ValidationError as exc:
+        at = tuple(where.split("."))
+        raise ConfigError("invalid configuration: " + "; ".join(_describe(e, at=at) for e in exc.errors())) from None
 
 
 # ----------------------------------------------------------------------------- merging
@@ -503,6 +601,27 @@ def merge(config: DTConfig, update: dict[str, Any] | None) -> DTConfig:
     if not update:
         return config
     return validate(deep_merge(config.to_dict(), _lift_highway_keys(update)))
+
+
+def set_highway_keys(config: DTConfig, values: dict[str, Any]) -> DTConfig:
+    """Set highway-env keys the way highway-env's flat config dict does
+    (``env.unwrapped.config["lanes_count"] = 2``): each value replaces the ``highway`` section's
+    old one whole (a table too), and the result is validated like any other layer.
+
+    :param config: the configuration
+    :param values: highway-env keys and their new values
+    :return: the new configuration
+    :raises ConfigError: one line naming ``highway.<key>``, for an unknown key or a bad value
+        (another section's name is refused with how to set it)
+    """
+    sections = [k for k in values if k in SECTIONS and k != "highway"]
+    if sections:
+        key = sections[0]
+        raise ConfigError(f"env.unwrapped.config holds highway-env's keys (the 'highway' section) only: set '{key}' "
+                          f"with env.unwrapped.configure({{'{key}': {{...}}}}) or gym.make(..., config=...)")
+    tree = config.to_dict()
+    tree["highway"].update(copy.deepcopy(values))
+    return validate(tree)
 
 
 # ----------------------------------------------------------------------------- files and --set

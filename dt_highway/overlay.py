@@ -29,8 +29,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from dt_highway.config import OverlayConfig, validate_section
+
 MARK_RGB = (235, 40, 40)
 """Colour of an aggressive-driver mark (RGB)"""
+_DEFAULTS = OverlayConfig()
 
 
 @dataclass
@@ -48,15 +51,16 @@ class OverlayStabilizer:
 
     :param onset_frames: consecutive frames a vehicle must be placed in before its mark shows [-]
     :param hold_s: how long a shown mark stays after the fusion stops placing its vehicle [s]
+
+    Defaults and ranges are the ``overlay`` section's (:class:`~dt_highway.config.OverlayConfig`).
+
+    :raises ConfigError: on a value out of range
     """
 
-    def __init__(self, onset_frames: int = 2, hold_s: float = 1.0) -> None:
-        if onset_frames < 1:
-            raise ValueError(f"onset_frames must be >= 1 (got {onset_frames})")
-        if not hold_s >= 0:
-            raise ValueError(f"hold_s must be >= 0 (got {hold_s})")
-        self.onset_frames = onset_frames
-        self.hold_s = hold_s
+    def __init__(self, onset_frames: int = _DEFAULTS.onset_frames, hold_s: float = _DEFAULTS.hold_s) -> None:
+        settings = validate_section(OverlayConfig, "overlay", onset_frames=onset_frames, hold_s=hold_s)
+        self.onset_frames = settings.onset_frames
+        self.hold_s = settings.hold_s
         self._marks: dict[int, _Mark] = {}
         self._t_s: float | None = None
 
@@ -163,7 +167,8 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple
         by = p1[1] - bh - thick
         if by < 0:  # no room above the box: below it
             by = min(p2[1] + thick, h - bh)
-        while any(bx < ox2 and ox1 < bx + bw and by < oy2 and oy1 < by + bh for ox1, oy1, ox2, oy2 in placed) and by > 0:
+        while by > 0 and any(bx < ox2 and ox1 < bx + bw and by < oy2 and oy1 < by + bh
+                             for ox1, oy1, ox2, oy2 in placed):
             by = max(by - bh - pad, 0)  # move up past the label in the way
         placed.append((bx, by, bx + bw, by + bh))
         banners.append((item, head, sub, bx, by, bw, bh, pad, th1, th2, p1, p2))

@@ -15,14 +15,22 @@ import io
 import math
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import jinja2
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.safety import CUT_IN_WINDOW_S, MS_TO_KMH, TTC_CAP_S, TTC_STAR_S
 from dt_highway.metrics.trial_log import load_trial
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 SUMMARY_METRICS = ("speed_variance_kmh2", "ttc_mean_s", "ttc_min_s", "tet_s", "tit_s2", "speed_mean_kmh",
                    "headway_mean_s", "drac_max_mps2", "hard_brakes", "cut_in_ttc_min_s", "reaction_mean_s")
@@ -30,7 +38,9 @@ SUMMARY_METRICS = ("speed_variance_kmh2", "ttc_mean_s", "ttc_min_s", "tet_s", "t
 PAPER = {"speed_variance_kmh2": (16.6, 14.2), "ttc_mean_s": (1.2, 3.2)}
 """The paper's values, baseline -> ADAS (units not stated there)"""
 DEFINITIONS = {
-    "speed_variance_kmh2": "sample variance (N-1) of the ego's speed in km/h over the trial's simulation steps [(km/h)^2]",
+    "speed_variance_kmh2": (
+        "sample variance (N-1) of the ego's speed in km/h over the trial's simulation steps [(km/h)^2]"
+    ),
     "ttc_mean_s": f"mean TTC over closing samples with TTC below {TTC_CAP_S:g} s [s]",
     "ttc_min_s": f"minimum TTC over the trial, capped at {TTC_CAP_S:g} s (never closer: {TTC_CAP_S:g}) [s]",
     "tet_s": f"time exposed TTC: time with 0 <= TTC <= {TTC_STAR_S:g} s [s] (Minderhoud & Bovy 2001)",
@@ -41,7 +51,10 @@ DEFINITIONS = {
     "hard_brakes": "onsets of ego deceleration >= 3 m/s^2 [-]",
     "cut_in_ttc_min_s": f"smallest of the cut-ins' minimum TTC to the cutting vehicle, capped at {TTC_CAP_S:g} s [s]",
     "reaction_mean_s": "mean time from a cut-in to the ego's first deceleration >= 1 m/s^2 [s]",
-    "ttc": "gap / closing speed, bumper to bumper to the vehicle ahead overlapping the ego's lane; infinite when not closing",
+    "ttc": (
+        "gap / closing speed, bumper to bumper to the vehicle ahead overlapping the ego's lane; "
+        "infinite when not closing"
+    ),
     "collisions": "onsets of the ego's crash [-]",
 }
 
@@ -55,7 +68,10 @@ def collect(study_dir: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     dirs = sorted(p.parent for p in root.glob("trials/*/meta.json"))
     if not dirs:
         raise FileNotFoundError(f"no trials under {root / 'trials'} (run dt-highway study first)")
-    rows, traces, ttc_samples, cut_ins = [], [], {}, []
+    rows: list[dict[str, Any]] = []
+    traces: list[dict[str, Any]] = []
+    ttc_samples: dict[str | None, list[np.ndarray]] = {}
+    cut_ins: list[dict[str, Any]] = []
     for d in dirs:
         trial = load_trial(d)
         meta = trial.meta
@@ -91,14 +107,13 @@ def collect(study_dir: str | Path) -> tuple[pd.DataFrame, dict[str, Any]]:
 
 
 def _describe(x: np.ndarray) -> dict[str, Any]:
-    from scipy import stats
-
     x = x[np.isfinite(x)]
     n = len(x)
     if not n:
         return {"n": 0, "mean": None, "sd": None, "ci95": [None, None]}
     mean = float(x.mean())
     sd = float(x.std(ddof=1)) if n > 1 else None
+    ci: list[float | None]
     if n > 1 and sd is not None:
         half = float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n))
         ci = [mean - half, mean + half]
@@ -112,8 +127,6 @@ def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas") ->
 
     Pairs: same participant when the trials have one, else the same pair number.
     """
-    from scipy import stats
-
     done = metrics[metrics["status"] == "completed"].copy()
     done["key"] = done["participant"].where(done["participant"].notna(), done["pair"].astype(str))
     out: dict[str, Any] = {}
@@ -161,16 +174,14 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
             "definitions": DEFINITIONS}
 
 
-def _png(fig: Any) -> str:
+def _png(fig: Figure) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
     plt.close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _legend(ax: Any) -> None:
+def _legend(ax: Axes) -> None:
     if ax.get_legend_handles_labels()[1]:
         ax.legend(fontsize=8)
     else:
@@ -178,19 +189,15 @@ def _legend(ax: Any) -> None:
 
 
 def _plots(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, str]:
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     colours = {"baseline": "tab:grey", "adas": "tab:red"}
     out = {}
     fig, ax = plt.subplots(figsize=(6, 3.2))
     for cond, chunks in extra["ttc"].items():
         x = np.concatenate(chunks) if chunks else np.zeros(0)
         if len(x):
-            ax.hist(x, bins=np.linspace(0, TTC_CAP_S, 41), alpha=0.55, density=True, label=f"{cond} ({len(x)} samples)",
-                    color=colours.get(cond))
+            ax.hist(x, bins=np.linspace(0, TTC_CAP_S, 41).tolist(), alpha=0.55, density=True,
+                    label=f"{cond} ({len(x)} samples)", color=colours.get(cond))
     ax.axvline(TTC_STAR_S, color="k", lw=0.8, ls="--")
     ax.set_xlabel("TTC while closing [s]")
     ax.set_ylabel("density")
@@ -203,7 +210,8 @@ def _plots(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, str]:
     if {"baseline", "adas"} <= set(wide.columns):
         for _, r in wide.iterrows():
             ax.plot([0, 1], [r["baseline"], r["adas"]], color="0.6", marker="o", ms=3, lw=0.8)
-        ax.plot([0, 1], [wide["baseline"].mean(), wide["adas"].mean()], color="tab:red", marker="o", lw=2.5, label="mean")
+        ax.plot([0, 1], [wide["baseline"].mean(), wide["adas"].mean()], color="tab:red", marker="o", lw=2.5,
+                label="mean")
     _legend(ax)
     ax.set_xticks([0, 1], ["baseline", "ADAS"])
     ax.set_ylabel("speed variance [(km/h)$^2$]")
@@ -216,7 +224,8 @@ def _plots(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, str]:
             arr = np.array([t["speed_kmh"] for t in tr])
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # instants no trace reaches
-                ax.plot(tr[0]["grid"], np.nanmean(arr, axis=0), color=colours[cond], lw=2, label=f"{cond} ({len(tr)} cut-ins)")
+                ax.plot(tr[0]["grid"], np.nanmean(arr, axis=0), color=colours[cond], lw=2,
+                        label=f"{cond} ({len(tr)} cut-ins)")
     ax.axvline(0, color="k", lw=0.8, ls="--")
     ax.set_xlabel("time from the cut-in [s]")
     ax.set_ylabel("ego speed change [km/h]")
@@ -257,7 +266,7 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}img{max-widt
 <h2>Definitions</h2><ul>{% for k, v in definitions.items() %}<li><b>{{ k }}</b>: {{ v }}</li>{% endfor %}</ul>
 <p class="small">The paper does not state its units or how it aggregates TTC; the values above follow the definitions listed here.</p>
 </body></html>
-"""
+"""  # noqa: E501 - the HTML template's lines are as long as its rows
 
 
 def _fmt(x: Any) -> str:
@@ -274,8 +283,6 @@ def write_report(study_dir: str | Path) -> dict[str, Path]:
     :return: the files written
     :raises FileNotFoundError: when the directory holds no trials
     """
-    import jinja2
-
     root = Path(study_dir)
     metrics, extra = collect(root)
     summary = summarise(metrics, extra)
@@ -289,7 +296,8 @@ def write_report(study_dir: str | Path) -> dict[str, Path]:
         name=root.name, drivers=", ".join(sorted(str(d) for d in metrics["driver"].dropna().unique())),
         n_completed=int((metrics["status"] == "completed").sum()), aborted=summary["aborted_trials"], conds=conds,
         metrics=[m for m in SUMMARY_METRICS if all(m in summary["conditions"][c] for c in conds)], summary=summary,
-        paper=summary["paper"], definitions=DEFINITIONS, plots=_plots(metrics, extra), fmt=_fmt, window=f"{CUT_IN_WINDOW_S:g}",
+        paper=summary["paper"], definitions=DEFINITIONS, plots=_plots(metrics, extra), fmt=_fmt,
+        window=f"{CUT_IN_WINDOW_S:g}",
         pct=lambda k, n: f" ({100 * k / n:.0f} %)" if n else "")
     files["html"].write_text(html, encoding="utf-8")
     return files

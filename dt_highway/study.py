@@ -28,6 +28,7 @@ import numpy as np
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import load_driver
+from dt_highway.env.seat import DriverSeat
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
@@ -170,8 +171,9 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         env = gym.make("dt-highway-v0", config=cfg.to_dict())
         u = env.unwrapped
         with TrialWriter(out, meta) as log:
-            obs, info = env.reset(seed=spec.seed)
-            driver.reset(u, spec.seed)
+            _, info = env.reset(seed=spec.seed)
+            seat = DriverSeat(u, driver.senses)  # what the driver perceives: never the env or info
+            driver.reset(spec.seed)
             action = np.zeros(2)
             rec = TrialRecorder(log)
             end: str | None = None  # set when the episode ends; its last info is logged first
@@ -179,8 +181,8 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
                 rec.record(info, action)
                 if end is not None:
                     break
-                action = np.asarray(driver.act(u, obs, info), dtype=float)
-                obs, _, terminated, truncated, info = env.step(action)
+                action = np.asarray(driver.act(seat.perceive()), dtype=float)
+                _, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
                     end = "collision" if u.vehicle.crashed else ("time limit" if truncated else "terminated")
             log.meta["end_reason"] = end

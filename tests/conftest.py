@@ -3,7 +3,7 @@ import os
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import pytest  # noqa: E402
+import pytest
 
 #: a small, fast scenario for tests (few vehicles, short episode and pre-roll)
 SMALL = {

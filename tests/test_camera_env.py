@@ -61,13 +61,13 @@ def test_one_rendering_per_step_shared_by_observation_info_and_callers(monkeypat
     monkeypatch.setattr(env.camera, "render", lambda *a, **k: calls.append(1) or original(*a, **k))
     obs, _, _, _, info = env.step(1)
     assert len(calls) == 1
-    frame = env.camera_frame()
+    frame = env.camera_image()
     assert len(calls) == 1 and frame.rgb is obs["rgb"]
     assert frame.time_s == pytest.approx(info["time_s"])
     truth = {t["vehicle_id"]: t for t in info["ground_truth"]["camera"]}
-    assert truth.keys() == frame.vehicles.keys()
+    assert truth.keys() == env.camera_truth().vehicles.keys()
     env.step(1)
-    env.camera_frame()
+    env.camera_image()
     assert len(calls) == 2
     env.close()
 
@@ -78,8 +78,8 @@ def test_same_seed_same_frames(cfg):
         env = DTHighwayEnv(config=cfg())
         env.reset(seed=4)
         env.step(1)
-        f = env.camera_frame()
-        frames.append((f.rgb.tobytes(), f.depth_m.tobytes(), f.instance.tobytes()))
+        f, t = env.camera_image(), env.camera_truth()
+        frames.append((f.rgb.tobytes(), f.depth_m.tobytes(), t.instance.tobytes()))
         env.close()
     assert frames[0] == frames[1]
 
@@ -90,7 +90,7 @@ def test_frames_show_the_traffic_and_never_the_ego(cfg):
     seen = set()
     for _ in range(4):
         env.step(1)
-        f = env.camera_frame()
+        f = env.camera_truth()
         seen |= {v for v, t in f.vehicles.items() if t.visible_px > 0}
         assert 0 not in f.vehicles
     assert len(seen) >= 3
@@ -101,7 +101,9 @@ def test_camera_off_by_default_and_errors(cfg, small_config):
     env = DTHighwayEnv(config=copy.deepcopy(small_config))
     env.reset(seed=0)
     with pytest.raises(RuntimeError, match="camera is off"):
-        env.camera_frame()
+        env.camera_image()
+    with pytest.raises(RuntimeError, match="camera is off"):
+        env.camera_truth()
     env.close()
     with pytest.raises(ConfigError, match="needs camera.enabled"):
         DTHighwayEnv(config={"highway": {"observation": {"type": "Camera"}}})
@@ -121,7 +123,7 @@ def test_principal_point_moves_the_image(cfg):
         env = DTHighwayEnv(config=cfg(camera={"cx_px": cx}))
         env.reset(seed=1)
         assert env.camera.camera.intrinsics.cx_px == (79.5 if cx is None else cx)
-        frames.append(env.camera_frame().rgb)
+        frames.append(env.camera_image().rgb)
         env.close()
     assert frames[0].tobytes() != frames[1].tobytes()
 

@@ -154,3 +154,11 @@ def test_bench_sim_prints_steps_ratios_and_the_deviation(capsys):
     assert set(r["steps_per_s"]) == {"stock_highway_v0", "ours_plain_idm", "ours_driver_types", "ours_adas_pipeline"}
     assert all(v > 0 for v in r["steps_per_s"].values())
     assert r["same_vehicles"] and r["max_deviation_m"] <= 1e-6
+
+
+def test_an_unknown_observation_or_action_type_is_a_one_line_error():
+    proc = _cli("run", "--set", "highway.observation.type=Nope", "--quiet")
+    _one_line_error(proc, "highway.observation.type = 'Nope'")
+    proc = _cli("run", "--set", "highway.action.type=Nope", "--quiet")
+    _one_line_error(proc, "highway.action.type = 'Nope'")
+    assert "Driver, DiscreteDriver" in proc.stderr and "DiscreteMetaAction" in proc.stderr

@@ -131,3 +131,87 @@ def test_a_partial_downlink_table_keeps_the_downlink_defaults():
 
     down = load_config(overrides=["twin.downlink.rate_hz=5"]).twin.downlink
     assert (down.rate_hz, down.latency_mean_s, down.latency_jitter_s, down.loss_prob) == (5.0, 0.05, 0.01, 0.0)
+
+
+# ----------------------------------------------------------------------------- observation and action types
+@pytest.mark.parametrize("section, ours", [("observation", ["Camera", "OverlayKinematics"]),
+                                           ("action", ["Driver", "DiscreteDriver"])])
+def test_an_unknown_observation_or_action_type_is_refused_when_configured(section, ours):
+    with pytest.raises(ConfigError) as info:
+        load_config(overrides=[f"highway.{section}.type=Nope"])
+    msg = str(info.value)
+    assert "\n" not in msg and f"highway.{section}.type = 'Nope'" in msg
+    assert all(name in msg for name in ours)
+    assert ("Kinematics" if section == "observation" else "DiscreteMetaAction") in msg  # highway-env's own
+    with pytest.raises(ConfigError, match=f"highway.{section}.type"):
+        gym.make("dt-highway-v0", config={section: {"type": "Nope"}})  # before highway-env's factory runs
+
+
+def test_the_known_types_are_highway_envs_factories_names_and_ours():
+    import inspect
+    import re
+
+    from highway_env.envs.common.action import action_factory
+    from highway_env.envs.common.observation import observation_factory
+
+    from dt_highway.config import (
+        ACTION_TYPES,
+        HIGHWAY_ENV_ACTION_TYPES,
+        HIGHWAY_ENV_OBSERVATION_TYPES,
+        OBSERVATION_TYPES,
+    )
+
+    def names(factory):
+        return set(re.findall(r'config\["type"\] == "(\w+)"', inspect.getsource(factory)))
+
+    assert names(observation_factory) == set(HIGHWAY_ENV_OBSERVATION_TYPES)  # highway-env 1.12's, exactly
+    assert names(action_factory) == set(HIGHWAY_ENV_ACTION_TYPES)
+    assert set(OBSERVATION_TYPES) - set(HIGHWAY_ENV_OBSERVATION_TYPES) == {"Camera", "OverlayKinematics"}
+    assert set(ACTION_TYPES) - set(HIGHWAY_ENV_ACTION_TYPES) == {"Driver", "DiscreteDriver"}
+    validate({"highway": {"observation": {"type": "OccupancyGrid"}, "action": {"type": "ContinuousAction"}}})
+
+
+# ----------------------------------------------------------------------------- settings derived from sections
+def test_component_settings_take_defaults_and_ranges_from_their_config_section():
+    from dt_highway.camera.render import RenderSettings
+    from dt_highway.config import CameraConfig, DetectorConfig, FusionConfig, OverlayConfig
+    from dt_highway.overlay import OverlayStabilizer
+    from dt_highway.perception import FusionSettings, SimulatedDetectorSettings
+
+    for settings, section in ((SimulatedDetectorSettings(), DetectorConfig()), (FusionSettings(), FusionConfig()),
+                              (RenderSettings(), CameraConfig())):
+        shared = set(type(settings).model_fields) & set(type(section).model_fields)
+        assert shared and all(getattr(settings, k) == getattr(section, k) for k in shared)
+    overlay = OverlayStabilizer()
+    assert (overlay.onset_frames, overlay.hold_s) == (OverlayConfig().onset_frames, OverlayConfig().hold_s)
+    # the ranges are the sections' too
+    for make, key in ((lambda: SimulatedDetectorSettings(jitter=0.9), "jitter"),
+                      (lambda: FusionSettings(th=1.0), "th"),
+                      (lambda: RenderSettings(vehicle_height_m=0.1), "vehicle_height_m")):
+        with pytest.raises(ValueError, match=key):
+            make()
+    with pytest.raises(ConfigError, match=r"^invalid configuration: overlay\.hold_s = -1 is out of range"):
+        OverlayStabilizer(hold_s=-1)
+    with pytest.raises(ValueError, match="method must be one of baseline, fusion, joint, tracked"):
+        FusionSettings(method="magic")
+    with pytest.raises(ValueError, match="frozen"):
+        FusionSettings().th = 0.5  # type: ignore[misc]
+
+
+# ----------------------------------------------------------------------------- training files
+@pytest.mark.parametrize("tree, must_contain", [
+    ({"kind": "rl", "bogus": 1}, ["training config: unknown key 'bogus' (allowed here: kind, algorithm"]),
+    ({"kind": "rl", "n_envs": 0}, ["training config: n_envs = 0 is out of range: must be >= 1"]),
+    ({"kind": "rl", "algorithm": "A2C"}, ["training config: algorithm = 'A2C'", "'PPO' or 'DQN'"]),
+    ({"kind": "rl", "accels_mps2": [-20.0]},
+     ["training config: accels_mps2 must be a non-empty list within [-8.0, 3.0]"]),
+    ({"kind": "rl", "timesteps": 0, "seed": -1}, ["timesteps = 0", "; seed = -1"]),  # every mistake, one line
+])
+def test_training_files_are_refused_through_the_config_error_path(tree, must_contain):
+    from dt_highway.rl.config import parse_train_config
+
+    with pytest.raises(ConfigError) as info:
+        parse_train_config(tree)
+    assert "\n" not in str(info.value)
+    for part in must_contain:
+        assert part in str(info.value)

@@ -27,7 +27,7 @@ def test_frames_are_pure_functions_of_their_seed_and_label_the_visible_boxes() -
     assert np.array_equal(a.rgb, c.rgb) and np.array_equal(a.boxes, c.boxes) and np.array_equal(b.boxes, c.boxes)
     assert a.rgb.shape == (180, 320, 3)
     # the labels are the renderer's visible boxes; scored = KITTI moderate (>= 12 px tall of 180, visibility >= 0.5)
-    boxes, keep = scored(a.frame)
+    boxes, keep = scored(a.truth)
     assert np.array_equal(boxes, a.boxes)
     tall = (a.boxes[:, 3] - a.boxes[:, 1]) >= 180 * 25 / 375
     assert not (keep & ~tall).any()
@@ -145,7 +145,7 @@ def test_the_shipped_weights_reach_the_ap_targets_on_a_small_seeded_set() -> Non
 def test_the_learned_detector_scales_boxes_to_larger_frames() -> None:
     det = LearnedDetector()
     f = make_frame(7, SceneSettings(640, 360, vary_camera=False))
-    found = det.detect(f.frame)
+    found = det.detect(f.image)
     gt = f.boxes[f.scored]
     assert len(gt) >= 1
     best = iou(gt, found.boxes).max(axis=1)

@@ -224,3 +224,107 @@ def test_long_run_memory_stays_flat():
 def test_bad_render_mode(bad):
     with pytest.raises(ValueError, match="render_mode"):
         DTHighwayEnv(render_mode=bad)
+
+
+# ----------------------------------------------------------------------------- env.unwrapped.config, highway-env's way
+def test_editing_env_config_before_reset_is_validated_and_applied(small_config):
+    env = _make(small_config)
+    u = env.unwrapped
+    config = u.config
+    config["lanes_count"] = 2  # highway-env's documented idiom
+    config["duration"] = 3
+    assert u.dt_config.highway.lanes_count == 2 and u.dt_config.highway.duration == 3.0
+    assert config["lanes_count"] == 2 and u.config is config  # the same dict, showing the tree
+    env.reset(seed=0)
+    assert len(u.road.network.graph["0"]["1"]) == 2  # the road really has two lanes
+    assert {v.lane_index[2] for v in u.road.vehicles} <= {0, 1}
+    config["observation"]["vehicles_count"] = 4  # inside a table: applied at the next reset
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (4, 5) and u.dt_config.highway.observation["vehicles_count"] == 4
+    config.update({"lanes_count": 3, "vehicles_count": 6})
+    assert (u.dt_config.highway.lanes_count, u.dt_config.highway.vehicles_count) == (3, 6)
+    env.close()
+
+
+@pytest.mark.parametrize("key, value, must_contain", [
+    ("banana", 1, "unknown key 'highway.banana' (allowed here: lanes_count"),
+    ("lanes_count", 0, "highway.lanes_count = 0 is out of range: must be >= 1"),
+    ("duration", "long", "highway.duration = 'long'"),
+    ("other_vehicles_type", "x.Y", "unknown key 'highway.other_vehicles_type'"),  # not configurable here
+    ("twin", {"enabled": False}, "set 'twin' with env.unwrapped.configure("),
+    ("observation", {"type": "Nope"}, "highway.observation.type = 'Nope'"),
+])
+def test_bad_edits_of_env_config_are_one_line_errors_naming_the_key(small_config, key, value, must_contain):
+    from dt_highway.config import ConfigError
+
+    env = _make(small_config)
+    u = env.unwrapped
+    before = u.dt_config
+    with pytest.raises(ConfigError) as info:
+        u.config[key] = value
+    assert "\n" not in str(info.value) and must_contain in str(info.value), str(info.value)
+    assert u.dt_config == before and u.config.get(key) != value  # nothing applied
+    with pytest.raises(ConfigError, match="cannot be removed"):
+        del u.config["duration"]
+    env.close()
+
+
+def test_an_edit_inside_a_table_is_checked_at_reset(small_config):
+    from dt_highway.config import ConfigError
+
+    env = _make(small_config)
+    env.unwrapped.config["action"]["type"] = "Nope"
+    with pytest.raises(ConfigError, match=r"highway\.action\.type = 'Nope'.*DiscreteDriver"):
+        env.reset(seed=0)
+    assert env.unwrapped.config["action"]["type"] == "DiscreteMetaAction"  # the refused edit is gone
+    env.close()
+
+
+def test_highway_envs_own_writes_and_copies_of_env_config_work(small_config):
+    import copy
+    import pickle
+
+    env = gym.make("dt-highway-v0", render_mode="rgb_array", config=small_config)
+    u = env.unwrapped
+    assert u.config["offscreen_rendering"] is True  # derived from render_mode, as highway-env does
+    assert u.dt_config.highway.offscreen_rendering is None  # ... without changing the tree
+    u.configure(None)  # highway-env's configure path, with its derived-value write
+    u.config["controlled_vehicles"] = 1  # writing a value it already has is fine, even a key not in the tree
+    u.config["offscreen_rendering"] = True
+    env.reset(seed=0)
+    assert env.render().shape == (u.config["screen_height"], u.config["screen_width"], 3)
+    plain = copy.deepcopy(u.config)
+    assert type(plain) is dict and plain == u.config
+    assert type(pickle.loads(pickle.dumps(u.config))) is dict
+    plain["lanes_count"] = 1  # a copy is the user's own dict
+    assert u.config["lanes_count"] == 3
+    clone = copy.deepcopy(u)  # highway-env's planners copy the env: the copy's dict stays live, on the copy
+    clone.config["lanes_count"] = 2
+    assert clone.dt_config.highway.lanes_count == 2 and u.dt_config.highway.lanes_count == 3
+    explicit = gym.make("dt-highway-v0", render_mode="rgb_array", config={**small_config, "offscreen_rendering": False})
+    assert explicit.unwrapped.config["offscreen_rendering"] is False
+    explicit.close()
+    env.close()
+
+
+def test_the_offscreen_rendering_variable_gives_highway_envs_deprecation_warning(monkeypatch):
+    """highway-env 1.12.1's tests/graphics TestDeprecation::test_offscreen_env_var_emits_warning, on our id."""
+    import warnings
+
+    monkeypatch.setenv("OFFSCREEN_RENDERING", "1")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        env = gym.make("dt-highway-v0", render_mode="rgb_array", config={"twin": {"preroll_s": 0.0}})
+        env.close()
+    messages = [str(x.message) for x in w if issubclass(x.category, DeprecationWarning)]
+    assert any("OFFSCREEN_RENDERING" in m and 'render_mode="rgb_array"' in m for m in messages), messages
+    monkeypatch.setenv("OFFSCREEN_RENDERING", "0")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        DTHighwayEnv(config={"twin": {"preroll_s": 0.0}}).close()
+    assert any('render_mode="human"' in str(x.message) for x in w)
+    monkeypatch.delenv("OFFSCREEN_RENDERING")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        DTHighwayEnv(config={"twin": {"preroll_s": 0.0}}).close()
+    assert not any("OFFSCREEN_RENDERING" in str(x.message) for x in w)

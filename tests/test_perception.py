@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from dt_highway.camera import Intrinsics, Mount, PinholeCamera, Pose
-from dt_highway.camera.render import CameraFrame, VehicleTruth
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.truth import CameraTruth, VehicleTruth
 from dt_highway.perception import (
     BoxTracker,
     Detections,
@@ -233,10 +234,14 @@ def test_decoupled_filters_equal_sorts_full_kalman_filter(seed):
     assert compared > 20
 
 # ----------------------------------------------------------------------------- simulated detector
-def _frame(truths: list[VehicleTruth], depth_m: float = 28.0) -> CameraFrame:
+def _image(depth_m: float = 28.0) -> CameraImage:
     h, w = 180, 320
-    return CameraFrame(np.zeros((h, w, 3), np.uint8), np.full((h, w), depth_m, np.float32),
-                       np.zeros((h, w), np.int32), {t.vehicle_id: t for t in truths}, Pose(0, 0, 0))
+    return CameraImage(np.zeros((h, w, 3), np.uint8), np.full((h, w), depth_m, np.float32), Pose(0, 0, 0))
+
+
+def _frame(truths: list[VehicleTruth], depth_m: float = 28.0) -> tuple[CameraImage, CameraTruth]:
+    image = _image(depth_m)
+    return image, CameraTruth(np.zeros(image.depth_m.shape, np.int32), {t.vehicle_id: t for t in truths})
 
 
 def _truth(vid, box, vis=1.0):
@@ -248,7 +253,7 @@ def test_simulated_detector_without_errors_returns_the_visible_boxes():
                                         false_positives_per_frame=0.0)
     frame = _frame([_truth(1, (10.5, 20.5, 50.5, 50.5)), _truth(2, (100.5, 60.5, 130.5, 80.5)),
                     VehicleTruth(3, None, (0, 0, 5, 5), 0.0, 0, 30, 60.0, 60.0, False)])
-    det = SimulatedDetector(perfect, np.random.default_rng(0)).detect(frame)
+    det = SimulatedDetector(perfect, np.random.default_rng(0)).detect(*frame)
     np.testing.assert_allclose(np.sort(det.boxes, axis=0),
                                np.sort(np.array([[10.5, 20.5, 50.5, 50.5], [100.5, 60.5, 130.5, 80.5]]), axis=0))
 
@@ -257,11 +262,11 @@ def test_simulated_detector_merges_overlapping_vehicles_and_is_seeded():
     merging = SimulatedDetectorSettings(jitter=0.0, miss_height_px=0.0, miss_visibility=0.0, merge_prob=1.0,
                                         false_positives_per_frame=0.0)
     frame = _frame([_truth(1, (10.5, 20.5, 50.5, 50.5)), _truth(2, (20.5, 25.5, 45.5, 45.5))])
-    det = SimulatedDetector(merging, np.random.default_rng(0)).detect(frame)
+    det = SimulatedDetector(merging, np.random.default_rng(0)).detect(*frame)
     np.testing.assert_allclose(det.boxes, [[10.5, 20.5, 50.5, 50.5]])
     noisy = SimulatedDetectorSettings(false_positives_per_frame=1.0)
-    one = SimulatedDetector(noisy, np.random.default_rng(3)).detect(frame)
-    two = SimulatedDetector(noisy, np.random.default_rng(3)).detect(frame)
+    one = SimulatedDetector(noisy, np.random.default_rng(3)).detect(*frame)
+    two = SimulatedDetector(noisy, np.random.default_rng(3)).detect(*frame)
     np.testing.assert_array_equal(one.boxes, two.boxes)
 
 
@@ -275,7 +280,7 @@ def _twin(vid, x, y, t_fix=0.0, speed=0.0):
 
 def test_anchor_projection_and_latency_compensation():
     fusion = Fusion(CAMERA, FusionSettings(method="fusion"), np.random.default_rng(0))
-    frame = _frame([])
+    frame = _image()
     uv, depth = fusion.anchors(frame, [_twin(1, 30.0, 0.0), _twin(2, -10.0, 0.0)], now_s=0.0, compensate=False)
     assert uv[0, 0] == pytest.approx(CAMERA.intrinsics.cx_px) and depth[0] == pytest.approx(30.0)
     assert np.isnan(uv[1]).all() and np.isnan(depth[1])  # behind the camera
@@ -287,7 +292,7 @@ def test_anchor_projection_and_latency_compensation():
 @pytest.mark.parametrize("method", ["baseline", "fusion", "joint", "tracked"])
 def test_fusion_handles_empty_and_bad_inputs(method):
     fusion = Fusion(CAMERA, FusionSettings(method=method), np.random.default_rng(0))
-    frame = _frame([])
+    frame = _image()
     assert fusion.step(frame, Detections.empty(), [], 0.0) == {}
     out = fusion.step(frame, Detections.empty(), [_twin(1, 30.0, 0.0)], 0.0)
     assert out[1].box is None and out[1].rule == "none"
@@ -301,12 +306,12 @@ def test_fusion_handles_empty_and_bad_inputs(method):
 def test_fusion_places_a_vehicle_on_its_box(method):
     fusion = Fusion(CAMERA, FusionSettings(method=method), np.random.default_rng(0))
     twin = [_twin(7, 30.0, 0.0)]
-    uv, _ = fusion.anchors(_frame([]), twin, 0.0, compensate=False)
+    uv, _ = fusion.anchors(_image(), twin, 0.0, compensate=False)
     u, v = uv[0]
     target = (u - 10, v - 8, u + 10, v + 6)
     dets = Detections.of([target, (u + 60, v - 8, u + 80, v + 6)])
     for _ in range(3):
-        out = fusion.step(_frame([]), dets, twin, 0.0)
+        out = fusion.step(_image(), dets, twin, 0.0)
     assert out[7].box is not None and iou([out[7].box], [target])[0, 0] == pytest.approx(1.0)
 
 

@@ -107,18 +107,18 @@ def _near_edge(instance: np.ndarray) -> np.ndarray:
 
 def test_frame_types_and_shapes():
     r = _renderer()
-    f = r.render(Pose(100, 4, 0), _random_traffic(0))
+    f, t = r.render(Pose(100, 4, 0), _random_traffic(0))
     assert f.rgb.dtype == np.uint8 and f.rgb.shape == (H, W, 3)
     assert f.depth_m.dtype == np.float32 and f.depth_m.shape == (H, W)
-    assert f.instance.dtype == np.int32 and f.instance.shape == (H, W)
+    assert t.instance.dtype == np.int32 and t.instance.shape == (H, W)
     assert f.range_m().shape == (H, W)
-    assert set(np.unique(f.instance)) - {0} <= set(f.vehicles)
+    assert set(np.unique(t.instance)) - {0} <= set(t.vehicles)
 
 
 def test_road_depth_is_analytic_for_a_level_camera():
     level = Mount(forward_m=0.0, height_m=1.4, pitch_rad=0.0)
     r = _renderer(mount=level, max_range_m=150.0)
-    f = r.render(Pose(50, 0, 0), VehicleSet.empty())
+    f, t = r.render(Pose(50, 0, 0), VehicleSet.empty())
     k = r.camera.intrinsics
     rows = np.arange(H)
     expected = k.fy_px * 1.4 / (rows - k.cy_px)
@@ -128,7 +128,7 @@ def test_road_depth_is_analytic_for_a_level_camera():
         np.testing.assert_allclose(f.depth_m[ground, u], expected[ground], rtol=1e-5)
     # sky and ground beyond max range saturate at max range
     assert np.all(f.depth_m[~ground] == pytest.approx(150.0))
-    assert not f.instance.any() and not f.vehicles
+    assert not t.instance.any() and not t.vehicles
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -136,10 +136,10 @@ def test_occlusion_and_depth_match_a_ray_caster(seed):
     r = _renderer()
     pose = Pose(100, 4, float(np.random.default_rng(seed).normal(0, 0.03)))
     vs = _random_traffic(seed)
-    f = r.render(pose, vs)
+    f, t = r.render(pose, vs)
     ref_id, ref_z = _ray_cast(r, pose, vs)
-    near_edge = _near_edge(f.instance) | _near_edge(ref_id)
-    disagree = f.instance != ref_id
+    near_edge = _near_edge(t.instance) | _near_edge(ref_id)
+    disagree = t.instance != ref_id
     assert (ref_id > 0).sum() > 500, "the scene should show some vehicles"
     # every pixel away from an outline shows the vehicle the ray meets first
     assert not (disagree & ~near_edge).any()
@@ -147,7 +147,7 @@ def test_occlusion_and_depth_match_a_ray_caster(seed):
     # and its exact planar depth (away from the outlines of faces, where a pixel may show the
     # neighbouring face of the same car)
     face_edge = _near_edge(r._face_map)
-    both = (f.instance == ref_id) & (ref_id > 0) & ~near_edge & ~face_edge
+    both = (t.instance == ref_id) & (ref_id > 0) & ~near_edge & ~face_edge
     assert both.sum() > 0.25 * (ref_id > 0).sum()
     np.testing.assert_allclose(f.depth_m[both], ref_z[both], rtol=1e-4)
 
@@ -155,25 +155,25 @@ def test_occlusion_and_depth_match_a_ray_caster(seed):
 def test_hidden_vehicle_has_visibility_zero_and_no_box():
     r = _renderer()
     vs = VehicleSet.of([(1, 112.0, 4.0), (2, 150.0, 4.0)])  # 2 right behind 1, in the ego's lane
-    f = r.render(Pose(100, 4, 0), vs)
-    assert 2 in f.vehicles, "a hidden vehicle in the view is still reported"
-    hidden = f.vehicles[2]
+    f, t = r.render(Pose(100, 4, 0), vs)
+    assert 2 in t.vehicles, "a hidden vehicle in the view is still reported"
+    hidden = t.vehicles[2]
     assert hidden.visibility == 0.0 and hidden.visible_box is None and hidden.visible_px == 0
     assert hidden.amodal_px > 0
-    assert not (f.instance == 2).any()
-    assert f.vehicles[1].visibility == pytest.approx(1.0)
+    assert not (t.instance == 2).any()
+    assert t.vehicles[1].visibility == pytest.approx(1.0)
     # move it one lane over: now seen, partly
-    f2 = r.render(Pose(100, 4, 0), VehicleSet.of([(1, 112.0, 4.0), (2, 150.0, 8.0)]))
-    assert 0.0 < f2.vehicles[2].visibility < 1.0
+    f2, t2 = r.render(Pose(100, 4, 0), VehicleSet.of([(1, 112.0, 4.0), (2, 150.0, 8.0)]))
+    assert 0.0 < t2.vehicles[2].visibility < 1.0
 
 
 @pytest.mark.parametrize("seed", range(3))
 def test_visible_boxes_are_the_instance_extents(seed):
     r = _renderer()
-    f = r.render(Pose(100, 4, 0), _random_traffic(seed))
+    f, t = r.render(Pose(100, 4, 0), _random_traffic(seed))
     seen = 0
-    for vid, truth in f.vehicles.items():
-        ys, xs = np.nonzero(f.instance == vid)
+    for vid, truth in t.vehicles.items():
+        ys, xs = np.nonzero(t.instance == vid)
         assert truth.visible_px == len(xs)
         if not len(xs):
             assert truth.visible_box is None and truth.visibility == 0.0
@@ -191,14 +191,14 @@ def test_visible_boxes_are_the_instance_extents(seed):
 
 def test_rear_face_depth_is_the_gap_to_the_camera():
     r = _renderer(mount=Mount(forward_m=0.5, height_m=1.3, pitch_rad=0.0))
-    f = r.render(Pose(100, 4, 0), VehicleSet.of([(7, 130.0, 4.0)]))
+    f, t = r.render(Pose(100, 4, 0), VehicleSet.of([(7, 130.0, 4.0)]))
     k = r.camera.intrinsics
     # the pixel straight ahead at 0.5 m above the road hits the rear face: Z = 130 - 2.5 - 100.5
     v = int(round(k.cy_px + k.fy_px * (1.3 - 0.5) / 27.0))
     u = int(round(k.cx_px))
-    assert f.instance[v, u] == 7
+    assert t.instance[v, u] == 7
     assert f.depth_m[v, u] == pytest.approx(27.0, abs=1e-4)
-    assert f.vehicles[7].depth_m == pytest.approx(130.0 - 100.5, abs=1e-9)
+    assert t.vehicles[7].depth_m == pytest.approx(130.0 - 100.5, abs=1e-9)
     norm = math.sqrt(1.0 + ((u - k.cx_px) / k.fx_px) ** 2 + ((v - k.cy_px) / k.fy_px) ** 2)
     assert f.range_m()[v, u] == pytest.approx(27.0 * norm, rel=1e-6)
 
@@ -207,15 +207,15 @@ def test_vehicles_behind_or_beside_the_camera():
     r = _renderer()
     # behind; alongside on both sides, crossing the camera's plane (x = 100.5)
     vs = VehicleSet.of([(1, 80.0, 4.0), (2, 102.5, 8.0), (3, 102.5, 0.0)])
-    f = r.render(Pose(100, 4, 0), vs)
-    assert 1 not in f.vehicles
+    f, t = r.render(Pose(100, 4, 0), vs)
+    assert 1 not in t.vehicles
     for vid in (2, 3):  # crossing the image plane: clipped at the near plane, seen at the image's side
-        truth = f.vehicles[vid]
+        truth = t.vehicles[vid]
         assert truth.truncated and truth.visible_px > 0
-        cols = np.nonzero(f.instance == vid)[1]
+        cols = np.nonzero(t.instance == vid)[1]
         assert (cols.min() == 0) if vid == 3 else (cols.max() == W - 1)
         assert truth.visible_px > 1000
-        assert (f.depth_m[f.instance == vid] >= r.camera.near_m).all()
+        assert (f.depth_m[t.instance == vid] >= r.camera.near_m).all()
 
 
 def test_output_is_deterministic():
@@ -223,19 +223,19 @@ def test_output_is_deterministic():
     a = _renderer().render(Pose(100, 4, 0.02), vs)
     b = _renderer().render(Pose(100, 4, 0.02), vs)
     c = _renderer().render(Pose(100, 4, 0.02), vs)
-    for x, y in ((a, b), (a, c)):
+    for (x, xt), (y, yt) in ((a, b), (a, c)):
         assert x.rgb.tobytes() == y.rgb.tobytes()
         assert x.depth_m.tobytes() == y.depth_m.tobytes()
-        assert x.instance.tobytes() == y.instance.tobytes()
-        assert x.vehicles == y.vehicles
+        assert xt.instance.tobytes() == yt.instance.tobytes()
+        assert xt.vehicles == yt.vehicles
 
 
 def test_colours_follow_ids_not_driver_types():
     r = _renderer()
-    f1 = r.render(Pose(100, 4, 0), VehicleSet.of([(3, 120.0, 4.0)]))
-    f2 = r.render(Pose(100, 4, 0), VehicleSet.of([(3, 120.0, 4.0)]))
+    f1, t1 = r.render(Pose(100, 4, 0), VehicleSet.of([(3, 120.0, 4.0)]))
+    f2, _ = r.render(Pose(100, 4, 0), VehicleSet.of([(3, 120.0, 4.0)]))
     assert f1.rgb.tobytes() == f2.rgb.tobytes()
-    assert len(np.unique(f1.rgb[f1.instance == 3].reshape(-1, 3), axis=0)) >= 4  # shaded faces, glass, lights
+    assert len(np.unique(f1.rgb[t1.instance == 3].reshape(-1, 3), axis=0)) >= 4  # shaded faces, glass, lights
 
 
 def test_bad_input_is_refused():

@@ -10,11 +10,11 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError, load_config
 from dt_highway.drivers import load_driver
-from dt_highway.env.senses import cars_under_marks
-from dt_highway.env import DTHighwayEnv, OverlayKinematics
-from dt_highway.rl.config import load_train_config, parse_train_config
-from dt_highway.evaluation.rl import evaluate
 from dt_highway.drivers.policy import PolicyDriver, load_policy
+from dt_highway.env import DriverSeat, DTHighwayEnv, OverlayKinematics
+from dt_highway.env.senses import cars_under_marks
+from dt_highway.evaluation.rl import evaluate
+from dt_highway.rl.config import load_train_config, parse_train_config
 from dt_highway.rl.train import train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +72,7 @@ def test_a_policy_from_another_observation_space_is_refused(tmp_path, capsys):
     env = DTHighwayEnv(config=load_config(str(ROOT / "envs/highway-trial.toml"), SHORT).to_dict())
     env.reset(seed=0)
     with pytest.raises(ConfigError, match="trained on observations"):
-        load_policy(wrong).reset(env, 0)
+        DriverSeat(env, load_policy(wrong).senses)
     code = main(["evaluate", "--driver", str(wrong), "--episodes", "1", "--scenario",
                  str(ROOT / "envs/highway-trial.toml"), *sum((["--set", s] for s in SHORT), [])])
     err = capsys.readouterr().err
@@ -174,11 +174,13 @@ def test_the_policy_sees_what_the_training_env_showed(tmp_path):
     tree["highway"]["duration"] = 6
     env = DTHighwayEnv(config=tree)
     obs, info = env.reset(seed=5)
-    driver.reset(env, 5)
+    seat = DriverSeat(env, driver.senses)
+    driver.reset(5)
     for _ in range(20):
-        assert np.array_equal(driver.observer.observe(), obs)
+        perception = seat.perceive()
+        assert np.array_equal(perception.observation, obs)
         k = int(driver.model.predict(obs, deterministic=True)[0])
-        assert np.array_equal(driver.actions.driver_action(k), env.action_type.driver_action(k))
+        assert np.array_equal(driver.menu.action(k, perception), env.action_type.driver_action(k))
         obs, _, term, trunc, info = env.step(k)
         if term or trunc:
             break
@@ -194,7 +196,7 @@ def test_the_overlay_column_follows_the_marker_on_screen_not_the_id(monkeypatch)
     env.reset(seed=0)
     env.step(np.zeros(2))
     rows = env.observation_type.observed()
-    frame = env.camera_frame()
+    frame = env.camera_truth()
     seen = [v for v in rows[1:] if v.dt_id in frame.vehicles and frame.vehicles[v.dt_id].visible_box is not None]
     assert len(seen) >= 2
     a, b = seen[0], seen[1]
@@ -240,7 +242,8 @@ def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, ca
 
 
 def test_the_assisted_menu_brakes_for_a_car_coming_into_the_lane():
-    from dt_highway.env.assisted import AssistedMenu
+    from dt_highway.drivers.menus import AssistedMenu
+    from dt_highway.env.senses import perceive
 
     cfg = load_config(str(ROOT / "envs/highway-trial.toml"), SHORT, {"highway": {"action": {"type": "Driver"}}})
     env = DTHighwayEnv(config=cfg.to_dict())
@@ -257,9 +260,9 @@ def test_the_assisted_menu_brakes_for_a_car_coming_into_the_lane():
     accel = {}
     for offset in (4.0, 2.5, 0.0):  # in the next lane, half into the ego's lane, in it
         car.position[1] = centre + offset
-        accel[offset] = menu.action(env, 3)[0]
+        accel[offset] = menu.action(perceive(env, AssistedMenu.SENSES), 3)[0]
     assert accel[4.0] > 0 > accel[2.5] and accel[2.5] == accel[0.0]
-    assert menu.action(env, 3)[1] == 0.0
+    assert menu.action(perceive(env, AssistedMenu.SENSES), 3)[1] == 0.0
 
 
 def test_dqn_on_images_gets_a_replay_buffer_that_fits_in_memory():

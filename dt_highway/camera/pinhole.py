@@ -123,7 +123,9 @@ class Projection:
 
 
 @kernel
-def _perspective(pc: np.ndarray, fx: float, fy: float, cx: float, cy: float, near: float) -> tuple[np.ndarray, np.ndarray]:
+def _perspective(
+    pc: np.ndarray, fx: float, fy: float, cx: float, cy: float, near: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (2)-(3): camera-frame points ``(N, 3)`` to pixels ``(N, 2)`` (NaN when not beyond
     ``near``) and planar depth ``(N,)`` [m]."""
     n = pc.shape[0]

@@ -27,21 +27,25 @@ How a frame is made
 
 Outputs and conventions
 -----------------------
+:meth:`CameraRenderer.render` returns two objects: the :class:`CameraImage` (what the
+camera delivers: ``rgb``, ``depth_m``, the pose and the time) and, apart, the
+:class:`~dt_highway.camera.truth.CameraTruth` (``instance`` and ``vehicles``).
+
 * ``rgb``: ``uint8 (H, W, 3)``.
 * ``depth_m``: ``float32 (H, W)``, **planar depth** ``Z`` along the optical axis [m]
   (CARLA's convention), saturated at ``max_range_m`` (sky, and ground farther than it).
-  :meth:`CameraFrame.range_m` gives the Euclidean range from the camera centre instead.
+  :meth:`CameraImage.range_m` gives the Euclidean range from the camera centre instead.
 * ``instance``: ``int32 (H, W)``, 0 = background (road, sky), else the vehicle id.
-* ``vehicles``: per vehicle drawn, a :class:`VehicleTruth` (visible box, amodal box,
-  visibility). Boxes are ``(x1, y1, x2, y2)`` [px] in the image frame where pixel
+* ``vehicles``: per vehicle drawn, a :class:`~dt_highway.camera.truth.VehicleTruth` (visible
+  box, amodal box, visibility). Boxes are ``(x1, y1, x2, y2)`` [px] in the image frame where pixel
   ``(col, row)`` covers ``[col - 0.5, col + 0.5] x [row - 0.5, row + 0.5]`` (pixel centres
   at integer coordinates, as in OpenCV and :mod:`~dt_highway.camera.pinhole`).
   Polygons are filled with OpenCV's inclusive rule (1/16 px vertex precision), so a
   silhouette can be up to one pixel wider than the exact projection; the visible box,
   pixel counts and visibility all use the same pixels.
 
-``instance`` and ``vehicles`` are simulator ground truth: for evaluation and for the
-simulated detector, never for what a driver or the twin sees.
+``instance`` and ``vehicles`` are simulator ground truth: for evaluation, training labels and
+the simulated detector, never for what a driver, the fusion or the twin sees.
 
 Limits: straight highways along ``+x`` (the road of ``dt-highway-v0``), drawn endless;
 the ego (the camera's carrier) is not drawn; vehicles whose centre is farther than
@@ -56,9 +60,12 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from pydantic import Field
 
 from dt_highway.camera.pinhole import PinholeCamera, Pose
 from dt_highway.camera.scene import RoadScene, VehicleSet
+from dt_highway.camera.truth import CameraTruth, VehicleTruth
+from dt_highway.config import CameraConfig, FrozenSettings, section_field
 
 _SHIFT = 4
 """Fixed-point bits of polygon vertices given to OpenCV (1/16 px precision)"""
@@ -66,9 +73,9 @@ _ONE = 1 << _SHIFT
 
 
 # ----------------------------------------------------------------------------- settings and outputs
-@dataclass(frozen=True)
-class RenderSettings:
-    """Scene settings of the renderer.
+class RenderSettings(FrozenSettings):
+    """Scene settings of the renderer; those a user sets take their defaults and ranges from
+    the ``camera`` section (:class:`~dt_highway.config.CameraConfig`).
 
     :param max_range_m: farthest distance drawn (ground, vehicles); the depth image
         saturates there [m]
@@ -78,60 +85,25 @@ class RenderSettings:
         in the image [px] (a level of detail: smaller ones would not show them)
     """
 
-    max_range_m: float = 200.0
-    vehicle_height_m: float = 1.5
-    fog_start: float = 0.45
-    detail_min_px: float = 10.0
-
-
-@dataclass(frozen=True)
-class VehicleTruth:
-    """Ground truth of one vehicle the camera draws.
-
-    :param vehicle_id: the vehicle's stable id (its value in the instance map)
-    :param visible_box: tight ``(x1, y1, x2, y2)`` box of its visible pixels [px], ``None``
-        when it is fully hidden
-    :param amodal_box: box of its whole projected shape, occluders ignored, not clipped to
-        the image [px]
-    :param visibility: visible pixels / pixels of its unoccluded shape inside the image [-]
-    :param visible_px: number of visible pixels [px]
-    :param amodal_px: number of pixels of its unoccluded shape inside the image [px]
-    :param depth_m: planar depth of its centre (at half height) [m]
-    :param range_m: Euclidean distance of its centre from the camera centre [m]
-    :param truncated: its shape crosses the image border
-    """
-
-    vehicle_id: int
-    visible_box: tuple[float, float, float, float] | None
-    amodal_box: tuple[float, float, float, float]
-    visibility: float
-    visible_px: int
-    amodal_px: int
-    depth_m: float
-    range_m: float
-    truncated: bool
-
-    def to_dict(self) -> dict:
-        """A JSON-ready dict."""
-        return dict(self.__dict__)
+    max_range_m: float = section_field(CameraConfig, "max_range_m")
+    vehicle_height_m: float = section_field(CameraConfig, "vehicle_height_m")
+    fog_start: float = Field(default=0.45, ge=0, le=1)
+    detail_min_px: float = section_field(CameraConfig, "detail_min_px")
 
 
 @dataclass
-class CameraFrame:
-    """One rendered frame (see the module docstring for conventions).
+class CameraImage:
+    """One rendered image, what the camera delivers (see the module docstring for conventions);
+    its ground truth is a separate :class:`~dt_highway.camera.truth.CameraTruth`.
 
     :param rgb: ``uint8 (H, W, 3)`` colour image
     :param depth_m: ``float32 (H, W)`` planar depth [m]
-    :param instance: ``int32 (H, W)`` vehicle id per pixel, 0 = background (ground truth)
-    :param vehicles: ground truth per drawn vehicle, keyed by vehicle id
-    :param pose: the ego pose the frame was rendered from
-    :param time_s: simulation time of the frame [s] (NaN when not given)
+    :param pose: the ego pose the image was rendered from
+    :param time_s: simulation time of the image [s] (NaN when not given)
     """
 
     rgb: np.ndarray
     depth_m: np.ndarray
-    instance: np.ndarray
-    vehicles: dict[int, VehicleTruth]
     pose: Pose
     time_s: float = math.nan
     _ray_norm: np.ndarray | None = field(default=None, repr=False)
@@ -139,7 +111,7 @@ class CameraFrame:
     def range_m(self) -> np.ndarray:
         """Euclidean range image ``float32 (H, W)`` [m]: distance from the camera centre."""
         if self._ray_norm is None:
-            raise ValueError("this frame has no ray norms (build it with CameraRenderer.render)")
+            raise ValueError("this image has no ray norms (build it with CameraRenderer.render)")
         return self.depth_m * self._ray_norm
 
 
@@ -401,14 +373,13 @@ class CameraRenderer:
 
     :param camera: the pinhole camera (intrinsics, mount, near plane)
     :param scene: the road
-    :param settings: scene settings
+    :param settings: scene settings (None: the ``camera`` section's defaults)
     """
 
-    def __init__(self, camera: PinholeCamera, scene: RoadScene, settings: RenderSettings = RenderSettings()) -> None:
+    def __init__(self, camera: PinholeCamera, scene: RoadScene, settings: RenderSettings | None = None) -> None:
+        settings = settings if settings is not None else RenderSettings()
         if settings.max_range_m <= camera.near_m:
             raise ValueError(f"max_range_m must exceed the near plane {camera.near_m} m (got {settings.max_range_m})")
-        if settings.vehicle_height_m <= 0:
-            raise ValueError(f"vehicle_height_m must be > 0 (got {settings.vehicle_height_m})")
         self.camera = camera
         self.scene = scene
         self.settings = settings
@@ -439,13 +410,14 @@ class CameraRenderer:
         self._face_seq = [int(f) for p in ((0, 1) if cam_above_body else (1, 0)) for f in np.flatnonzero(m.face_part == p)]
 
     # ------------------------------------------------------------------ public
-    def render(self, pose: Pose, vehicles: VehicleSet, time_s: float = math.nan) -> CameraFrame:
+    def render(self, pose: Pose, vehicles: VehicleSet, time_s: float = math.nan) -> tuple[CameraImage, CameraTruth]:
         """Render one frame.
 
         :param pose: the ego's pose (the camera rides on it)
         :param vehicles: the vehicles to draw (not the ego)
-        :param time_s: simulation time stamped on the frame [s]
-        :return: the frame (RGB, planar depth, instance ids, ground truth per vehicle)
+        :param time_s: simulation time stamped on the image [s]
+        :return: the image (RGB, planar depth, pose) and, apart, its ground truth (instance
+            ids, boxes per vehicle: for evaluation and sensor models only)
         """
         h, w = self.shape
         if len(vehicles) and int(vehicles.ids.min()) <= 0:
@@ -463,7 +435,7 @@ class CameraRenderer:
             instance = self._draw_vehicles(vehicles, rot, t, cam_centre, rgb, depth, truths)
         if instance is None:
             instance = np.zeros((h, w), dtype=np.int32)
-        return CameraFrame(rgb, depth, instance, truths, pose, time_s, self._ray_norm)
+        return CameraImage(rgb, depth, pose, time_s, self._ray_norm), CameraTruth(instance, truths)
 
     # ------------------------------------------------------------------ vehicles
     def _draw_vehicles(

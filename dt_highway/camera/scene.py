@@ -58,7 +58,8 @@ class RoadScene:
         lines: dict[float, bool] = {}
         y_lo, y_hi, x_lo, x_hi = [], [], [], []
         for lane in lanes:
-            if not isinstance(lane, StraightLane) or abs(lane.start[1] - lane.end[1]) > 1e-9 or lane.end[0] <= lane.start[0]:
+            if (not isinstance(lane, StraightLane) or abs(lane.start[1] - lane.end[1]) > 1e-9
+                    or lane.end[0] <= lane.start[0]):
                 raise ValueError(
                     f"the camera draws straight lanes along +x only (got {type(lane).__name__} "
                     f"from {tuple(lane.start) if hasattr(lane, 'start') else '?'})"
@@ -68,7 +69,7 @@ class RoadScene:
             y_hi.append(y + half)
             x_lo.append(float(lane.start[0]))
             x_hi.append(float(lane.end[0]))
-            for side, kind in zip((-1.0, 1.0), lane.line_types):
+            for side, kind in zip((-1.0, 1.0), lane.line_types, strict=False):  # highway-env: two line types
                 if kind == LineType.NONE:
                     continue
                 key = round(y + side * half, 6)

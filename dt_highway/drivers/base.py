@@ -1,5 +1,16 @@
 """What every driver of the ego is: the :class:`Driver` base and the pedal limits of the
-``Driver`` action ``[acceleration m/s^2, lane request]`` all of them drive through."""
+``Driver`` action ``[acceleration m/s^2, lane request]`` all of them drive through.
+
+A driver declares what it looks at (:attr:`Driver.senses`, a
+:class:`~dt_highway.drivers.perception.SenseRequest`) and acts on a
+:class:`~dt_highway.drivers.perception.Perception` holding just that: it never receives the
+env, its ``info`` or any ground truth. The harness (a study trial, an evaluation) asks the
+env side for the perception (:class:`~dt_highway.env.seat.DriverSeat`) and passes it::
+
+    seat = DriverSeat(env.unwrapped, driver.senses)
+    driver.reset(seed)
+    action = driver.act(seat.perceive())
+"""
 
 from __future__ import annotations
 
@@ -7,10 +18,8 @@ from typing import Any
 
 import numpy as np
 
-ACCEL_MIN_MPS2 = -8.0
-"""Hardest braking a driver can command [m/s^2] (about 0.8 g, a full stop on dry asphalt)"""
-ACCEL_MAX_MPS2 = 3.0
-"""Strongest acceleration a driver can command [m/s^2]"""
+from dt_highway.agent_config import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2  # noqa: F401 - re-exported: the Driver action's limits
+from dt_highway.drivers.perception import Perception, SenseRequest
 
 
 class Driver:
@@ -19,8 +28,8 @@ class Driver:
     :param name: the driver's name (its file's stem)
     """
 
-    needs_camera = False
-    """The driver looks at the overlay (ADAS condition)"""
+    senses: SenseRequest = SenseRequest()
+    """What the driver looks at: the env side fills only these parts of its perception"""
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -34,13 +43,15 @@ class Driver:
         of a given size for a vision policy); merged over the condition's settings."""
         return {}
 
-    def reset(self, env: Any, seed: int) -> None:
+    def reset(self, seed: int) -> None:
         """Start a trial.
 
-        :param env: the env (unwrapped)
         :param seed: seed of the driver's own randomness
         """
 
-    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
-        """One decision: ``[acceleration m/s^2, lane request -1..1]``."""
+    def act(self, perception: Perception) -> np.ndarray:
+        """One decision: ``[acceleration m/s^2, lane request -1..1]``.
+
+        :param perception: what the driver perceives now (the parts :attr:`senses` asks for)
+        """
         raise NotImplementedError

@@ -4,27 +4,10 @@ car following for the scripted drivers and the assisted action menu."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
+from dt_highway.agent_config import IDMParams
 
-@dataclass(frozen=True)
-class IDMParams:
-    """Intelligent Driver Model.
-
-    :param desired_speed_mps: ``v0`` [m/s]
-    :param time_headway_s: ``T`` [s]
-    :param min_gap_m: ``s0`` [m]
-    :param max_accel_mps2: ``a`` [m/s^2]
-    :param comfort_decel_mps2: ``b`` [m/s^2]
-    :param delta: acceleration exponent [-]
-    """
-
-    desired_speed_mps: float = 30.0
-    time_headway_s: float = 1.6
-    min_gap_m: float = 2.0
-    max_accel_mps2: float = 0.73
-    comfort_decel_mps2: float = 1.67
-    delta: float = 4.0
+__all__ = ["IDMParams", "idm_accel"]
 
 
 def idm_accel(speed_mps: float, gap_m: float, closing_mps: float, p: IDMParams,

@@ -3,7 +3,8 @@
 All drive through the ``"Driver"`` action (:mod:`dt_highway.env.actions`): one
 decision per policy step, ``[acceleration m/s^2, lane request]``.
 
-What a driver perceives: the vehicles around it as a person in the driver's seat sees them
+What a driver perceives (its :class:`~dt_highway.drivers.perception.Perception`, filled by the
+env's senses, :mod:`dt_highway.env.senses`): the vehicles around it as a person in the driver's seat sees them
 (positions and speeds of the nearest vehicle ahead and behind in its lane and the lanes
 beside it; never their driver type), and, in the ADAS condition, the overlay: the boxes the
 fusion marked "aggressive driver" on the camera image. A person knows which car a marker
@@ -45,14 +46,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
+from dt_highway.agent_config import HumanParams, RandomParams
 from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, Driver
 from dt_highway.drivers.idm import IDMParams, idm_accel
-from dt_highway.env.senses import Seen, Surroundings, look_around, marked_vehicles
+from dt_highway.drivers.perception import Perception, Seen, SenseRequest, Surroundings
 
 
 class IDMDriver(Driver):
@@ -62,15 +63,17 @@ class IDMDriver(Driver):
     :param idm: IDM parameters
     """
 
+    senses = SenseRequest(surroundings=True)
+
     def __init__(self, name: str, idm: IDMParams) -> None:
         super().__init__(name)
         self.idm = idm
 
     def params(self) -> dict[str, Any]:
-        return {"idm": asdict(self.idm)}
+        return {"idm": self.idm.model_dump()}
 
-    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
-        s = look_around(env)
+    def act(self, perception: Perception) -> np.ndarray:
+        s = _surroundings(perception)
         lead = s.ahead[0]
         a = idm_accel(s.speed_mps, lead.gap_m, s.speed_mps - lead.speed_mps, self.idm)
         return np.array([np.clip(a, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2), 0.0])
@@ -80,71 +83,26 @@ class RandomDriver(Driver):
     """Random pedals (uniform in ``[accel_min, accel_max]`` [m/s^2]) and the odd random lane change.
 
     :param name: driver name
-    :param accel_min_mps2: least acceleration [m/s^2]
-    :param accel_max_mps2: largest acceleration [m/s^2]
-    :param lane_change_prob: chance of a lane request per decision [-]
+    :param params: its parameters (:class:`~dt_highway.agent_config.RandomParams`; None: the defaults)
     """
 
-    def __init__(self, name: str, accel_min_mps2: float = -2.0, accel_max_mps2: float = 2.0,
-                 lane_change_prob: float = 0.02) -> None:
+    def __init__(self, name: str, params: RandomParams | None = None) -> None:
         super().__init__(name)
-        self.accel_min_mps2, self.accel_max_mps2 = accel_min_mps2, accel_max_mps2
-        self.lane_change_prob = lane_change_prob
+        self.p = params if params is not None else RandomParams()
+        self.accel_min_mps2, self.accel_max_mps2 = self.p.accel_min_mps2, self.p.accel_max_mps2
+        self.lane_change_prob = self.p.lane_change_prob
         self.rng = np.random.default_rng(0)
 
     def params(self) -> dict[str, Any]:
-        return {"accel_min_mps2": self.accel_min_mps2, "accel_max_mps2": self.accel_max_mps2,
-                "lane_change_prob": self.lane_change_prob}
+        return self.p.model_dump()
 
-    def reset(self, env: Any, seed: int) -> None:
+    def reset(self, seed: int) -> None:
         self.rng = np.random.default_rng(seed)
 
-    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+    def act(self, perception: Perception) -> np.ndarray:
         a = self.rng.uniform(self.accel_min_mps2, self.accel_max_mps2)
         lane = float(self.rng.choice([-1.0, 1.0])) if self.rng.random() < self.lane_change_prob else 0.0
         return np.array([a, lane])
-
-
-@dataclass(frozen=True)
-class HumanParams:
-    """The human-like driver's parameters (see the module docstring for their sources).
-
-    :param idm: car following
-    :param reaction_time_s: ``T'`` [s]
-    :param distance_error: relative distance estimation error ``V_s`` [-]
-    :param inverse_ttc_error_per_s: ``r_c`` [1/s]
-    :param error_correlation_s: correlation time of the estimation errors [s]
-    :param politeness: MOBIL ``p`` [-]
-    :param lane_change_threshold_mps2: MOBIL ``Delta a_th`` [m/s^2]
-    :param safe_decel_mps2: MOBIL ``b_safe`` [m/s^2]
-    :param min_lane_change_interval_s: least time between two lane changes [s]
-    :param alert_headway_factor: time gap multiplier while warned [-]
-    :param alert_speed_factor: desired speed multiplier while warned [-]
-    :param alert_reaction_factor: reaction time multiplier while warned [-]
-    :param alert_ahead_m: a marked car this far ahead (own or next lane) warns [m]
-    :param alert_behind_m: a marked car in the next lane this far behind warns [m]
-    :param alert_hold_s: the warning lasts this long after the marker is gone [s]
-    :param anticipate_cut_in: keep a gap behind a marked car in the next lane
-    :param alert_ease_off_mps2: strongest deceleration that gap-keeping uses [m/s^2]
-    """
-
-    idm: IDMParams = IDMParams(desired_speed_mps=27.0)
-    reaction_time_s: float = 1.0
-    distance_error: float = 0.1
-    inverse_ttc_error_per_s: float = 0.01
-    error_correlation_s: float = 20.0
-    politeness: float = 0.2
-    lane_change_threshold_mps2: float = 0.2
-    safe_decel_mps2: float = 4.0
-    min_lane_change_interval_s: float = 10.0
-    alert_headway_factor: float = 1.4
-    alert_speed_factor: float = 0.95
-    alert_reaction_factor: float = 0.7
-    alert_ahead_m: float = 60.0
-    alert_behind_m: float = 10.0
-    alert_hold_s: float = 3.0
-    anticipate_cut_in: bool = True
-    alert_ease_off_mps2: float = 0.5
 
 
 class HumanDriver(Driver):
@@ -152,14 +110,14 @@ class HumanDriver(Driver):
     in the ADAS condition it responds to the overlay (module docstring).
 
     :param name: driver name
-    :param params: its parameters
+    :param params: its parameters (:class:`~dt_highway.agent_config.HumanParams`; None: the defaults)
     """
 
-    needs_camera = True
+    senses = SenseRequest(surroundings=True, marks=True)
 
-    def __init__(self, name: str, params: HumanParams = HumanParams()) -> None:
+    def __init__(self, name: str, params: HumanParams | None = None) -> None:
         super().__init__(name)
-        self.p = params
+        self.p = params if params is not None else HumanParams()
         self.rng = np.random.default_rng(0)
         self._memory: deque[Surroundings] = deque()
         self._w = np.zeros(2)
@@ -168,9 +126,9 @@ class HumanDriver(Driver):
         self._t_prev: float | None = None
 
     def params(self) -> dict[str, Any]:
-        return asdict(self.p)
+        return self.p.model_dump()
 
-    def reset(self, env: Any, seed: int) -> None:
+    def reset(self, seed: int) -> None:
         self.rng = np.random.default_rng(seed)
         self._memory.clear()
         self._w = self.rng.normal(0.0, 1.0, 2)  # stationary start of the error processes
@@ -192,14 +150,14 @@ class HumanDriver(Driver):
         closing = closing_mps - seen.gap_m * self.p.inverse_ttc_error_per_s * self._w[1]
         return max(gap - delay_s * closing, 0.1), closing  # anticipation over the reaction time
 
-    def act(self, env: Any, obs: Any, info: dict[str, Any]) -> np.ndarray:
+    def act(self, perception: Perception) -> np.ndarray:
         p = self.p
-        now = look_around(env)
+        now = _surroundings(perception)
         dt = 0.0 if self._t_prev is None else now.t_s - self._t_prev
         self._t_prev = now.t_s
         self._advance_errors(dt)
         self._memory.append(now)
-        marked = marked_vehicles(env, info)
+        marked = perception.cars_under_marks
         near = [vid for vid in marked if vid in now.x_of and (
             (now.x_of[vid][1] == 0 and 0 < now.x_of[vid][0] <= p.alert_ahead_m)
             or (abs(now.x_of[vid][1]) == 1 and -p.alert_behind_m <= now.x_of[vid][0] <= p.alert_ahead_m))]
@@ -254,3 +212,10 @@ class HumanDriver(Driver):
             if gain > best_gain:
                 best, best_gain = off, gain
         return best
+
+
+def _surroundings(perception: Perception) -> Surroundings:
+    """The surroundings a scripted driver acts on (it asks for them in its ``senses``)."""
+    if perception.surroundings is None:
+        raise ValueError("this driver looks around: perceive with its senses (surroundings = True)")
+    return perception.surroundings

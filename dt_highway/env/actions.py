@@ -19,7 +19,8 @@ from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
-from dt_highway.env.assisted import DEFAULT_SPEEDS_MPS, AssistedMenu
+from dt_highway.drivers.menus import DEFAULT_DISCRETE_ACCELS_MPS2, DiscreteMenu
+from dt_highway.env.senses import perceive
 
 
 class DrivenVehicle(ControlledVehicle):
@@ -125,20 +126,18 @@ class DriverAction(ActionType):
         self.last_action = a
 
 
-DEFAULT_DISCRETE_ACCELS_MPS2 = (-6.0, -3.0, -1.0, 0.0, 1.0, 2.0)
-"""Accelerations of the ``DiscreteDriver`` action, keeping the lane [m/s^2]"""
-
-
 class DiscreteDriverAction(DriverAction):
     """The ``Driver`` action as a finite menu, for value-based agents (DQN) and discrete PPO.
 
     Raw pedals (``assist = false``): action ``k < len(accels)`` keeps the lane with
     acceleration ``accels[k]`` [m/s^2]; the last two ask for one lane left, one lane right,
     with no acceleration. Assisted (``assist = true``,
-    :class:`~dt_highway.env.assisted.AssistedMenu`): action ``k < len(speeds)`` sets the
+    :class:`~dt_highway.drivers.menus.AssistedMenu`): action ``k < len(speeds)`` sets the
     desired speed, the last two change lane when it is safe, and the Intelligent Driver Model
     keeps the gap. Either way each choice is the ``Driver`` action :meth:`driver_action`
-    returns, so a policy trained on it drives anywhere a ``Driver`` action is taken.
+    returns, computed by the driver-side menu (:class:`~dt_highway.drivers.menus.DiscreteMenu`)
+    from the perception the env's senses give it, so a policy trained on it drives anywhere a
+    ``Driver`` action is taken.
 
     :param env: the env
     :param accels_mps2: raw pedals: the accelerations to choose from [m/s^2], within the Driver limits
@@ -151,40 +150,20 @@ class DiscreteDriverAction(DriverAction):
         super().__init__(env, **kwargs)
         if self.steering:
             raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
-        self.assisted = None
-        if assist:
-            try:
-                self.assisted = AssistedMenu(tuple(speeds_mps if speeds_mps is not None else DEFAULT_SPEEDS_MPS))
-            except TypeError:
-                raise ValueError(f"speeds_mps must be a list of speeds [m/s] (got {speeds_mps!r})") from None
-            self.menu: list[tuple[float, float]] = []
-            return
-        try:
-            accels = [float(a) for a in accels_mps2]
-        except (TypeError, ValueError):
-            raise ValueError(f"accels_mps2 must be a list of numbers [m/s^2] (got {accels_mps2!r})") from None
-        if not accels or not all(self.accel_min_mps2 <= a <= self.accel_max_mps2 for a in accels):
-            raise ValueError(f"accels_mps2 must be a non-empty list within [{self.accel_min_mps2}, "
-                             f"{self.accel_max_mps2}] m/s^2 (got {accels})")
-        self.menu = [(a, 0.0) for a in accels] + [(0.0, -1.0), (0.0, 1.0)]
+        self.choices = DiscreteMenu(accels_mps2, assist, speeds_mps, self.accel_min_mps2, self.accel_max_mps2)
 
     def space(self) -> spaces.Discrete:
-        return spaces.Discrete(self.assisted.size if self.assisted is not None else len(self.menu))
+        return spaces.Discrete(self.choices.size)
 
     def reset(self) -> None:
         """Start an episode (the assisted menu's desired speed goes back to its middle value)."""
-        if self.assisted is not None:
-            self.assisted.reset()
+        self.choices.reset()
 
     def driver_action(self, index: Any) -> np.ndarray:
         """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index`` now."""
-        k = int(np.asarray(index).reshape(-1)[0])
-        n = self.space().n
-        if not 0 <= k < n:
-            raise ValueError(f"a DiscreteDriver action is an integer in 0..{n - 1} (got {index!r})")
-        if self.assisted is not None:
-            return self.assisted.action(self.env, k)
-        return np.array(self.menu[k], dtype=float)
+        k = self.choices.choice(index)
+        perception = perceive(self.env, self.choices.senses) if self.choices.assisted is not None else None
+        return self.choices.action(k, perception)
 
     def act(self, action: Any) -> None:
         super().act(self.driver_action(action))

@@ -2,7 +2,9 @@
 
 The env calls :meth:`AdasPipeline.run` once per step (:meth:`~dt_highway.env.core.DTHighwayEnv.adas_output`
 caches it for whoever asks first: the observation, ``info``, a driver's senses). It reads the
-camera frame and the twin view the ego received, never the simulator's truth.
+camera image and the twin view the ego received, never the simulator's truth; the frame's
+ground truth reaches only the simulated detector, a sensor model
+(:func:`~dt_highway.perception.detect.run_detector`).
 """
 
 from __future__ import annotations
@@ -13,18 +15,21 @@ from typing import Any
 import numpy as np
 
 from dt_highway.camera.pinhole import PinholeCamera
-from dt_highway.camera.render import CameraFrame
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.truth import CameraTruth
 from dt_highway.config import DTConfig
+from dt_highway.labels import AGGRESSIVE
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.perception import (
     Detections,
     Detector,
     Fusion,
+    SimulatedDetector,
     fusion_settings,
     make_detector,
+    run_detector,
 )
 from dt_highway.twin.cloud import TwinVehicleView
-from dt_highway.twin.tagger import AGGRESSIVE
 
 
 class AdasPipeline:
@@ -35,7 +40,7 @@ class AdasPipeline:
     :param overlay: the overlay stabiliser
     """
 
-    def __init__(self, detector: Detector, fusion: Fusion, overlay: OverlayStabilizer) -> None:
+    def __init__(self, detector: Detector | SimulatedDetector, fusion: Fusion, overlay: OverlayStabilizer) -> None:
         self.detector, self.fusion, self.overlay = detector, fusion, overlay
 
     @classmethod
@@ -51,10 +56,12 @@ class AdasPipeline:
         return cls(make_detector(cfg.detector, detector_rng), Fusion(camera, fusion_settings(cfg.fusion), fusion_rng),
                    OverlayStabilizer(cfg.overlay.onset_frames, cfg.overlay.hold_s))
 
-    def run(self, frame: CameraFrame, view: Sequence[TwinVehicleView], twin_now_s: float, sim_time_s: float) -> dict[str, Any]:
-        """Detector and fusion on this step's frame: the ADAS output (never ground truth).
+    def run(self, image: CameraImage, truth: CameraTruth, view: Sequence[TwinVehicleView], twin_now_s: float,
+            sim_time_s: float) -> dict[str, Any]:
+        """Detector and fusion on this step's image: the ADAS output (never ground truth).
 
-        :param frame: this step's camera frame
+        :param image: this step's camera image
+        :param truth: its ground truth, for the simulated detector's sensor model only
         :param view: the twin view the ego received
         :param twin_now_s: the twin clock now [s]
         :param sim_time_s: the episode clock now [s]
@@ -64,8 +71,8 @@ class AdasPipeline:
             ``held``); ``fusion_items``: the same before stabilizing (this frame's placements
             only); ``placements``: every placed connected vehicle; ``n_boxes``; ``method``
         """
-        detections: Detections = self.detector.detect(frame)
-        placements = self.fusion.step(frame, detections, view, twin_now_s)
+        detections: Detections = run_detector(self.detector, image, truth)
+        placements = self.fusion.step(image, detections, view, twin_now_s)
         tags = {v.vehicle_id: v for v in view}
         items = []
         for vid, p in placements.items():

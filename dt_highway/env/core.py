@@ -32,14 +32,16 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import (
-    CameraFrame,
+    CameraImage,
     CameraRenderer,
     RenderSettings,
 )
 from dt_highway.camera.scene import RoadScene, VehicleSet
-from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge
+from dt_highway.camera.truth import CameraTruth
+from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge, set_highway_keys
 from dt_highway.env.actions import DiscreteDriverAction, DriverAction
 from dt_highway.env.adas import AdasPipeline
+from dt_highway.env.flat_config import FlatConfig
 from dt_highway.env.observations import (
     CameraObservation,
     OverlayKinematics,
@@ -47,7 +49,7 @@ from dt_highway.env.observations import (
 )
 from dt_highway.metrics.safety import SafetyMonitor
 from dt_highway.overlay import OverlayStabilizer
-from dt_highway.perception import Fusion
+from dt_highway.perception import Detector, Fusion, SimulatedDetector
 from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
 from dt_highway.twin.tagger import HighwayMap
 from dt_highway.twin.uplink import Uplink, VehicleState
@@ -74,7 +76,8 @@ def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
         Mount(m.forward_m, m.lateral_m, m.height_m, math.radians(m.pitch_deg), math.radians(m.yaw_deg)),
         near_m=cfg.near_m,
     )
-    settings = RenderSettings(cfg.max_range_m, cfg.vehicle_height_m, detail_min_px=cfg.detail_min_px)
+    settings = RenderSettings(max_range_m=cfg.max_range_m, vehicle_height_m=cfg.vehicle_height_m,
+                              detail_min_px=cfg.detail_min_px)
     return CameraRenderer(camera, scene, settings)
 
 
@@ -87,6 +90,9 @@ class DTHighwayEnv(HighwayEnv):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
+    config: dict[str, Any]
+    """highway-env's flat configuration, derived from ``dt_config``
+    (a :class:`~dt_highway.env.flat_config.FlatConfig`)"""
     POPULATION_STREAM = 0x5EED_D21E
     """Mixed with the world seed so the population's stream differs from the episode's"""
 
@@ -105,11 +111,11 @@ class DTHighwayEnv(HighwayEnv):
         self._events: list[TrafficEvent] = []
         self.camera: CameraRenderer | None = None
         self._camera_key: tuple[str, RoadScene] | None = None
-        self._frame: CameraFrame | None = None
+        self._frame: tuple[CameraImage, CameraTruth] | None = None
         self._frame_key: tuple[int, int] | None = None
         self._episode = 0
         self.pipeline: AdasPipeline | None = None
-        self.detector = None
+        self.detector: Detector | SimulatedDetector | None = None
         self.fusion: Fusion | None = None
         self.overlay: OverlayStabilizer | None = None
         self.adas: dict[str, Any] | None = None
@@ -140,12 +146,43 @@ class DTHighwayEnv(HighwayEnv):
     def configure(self, config: dict | None) -> None:
         """Deep-merge a (partial) tree into the configuration and validate it.
 
+        ``self.config``, highway-env's flat dict, is derived from the tree; editing it
+        (``env.unwrapped.config["lanes_count"] = 2``) edits the tree the same validated way
+        (:class:`~dt_highway.env.flat_config.FlatConfig`).
+
         :raises ConfigError: on unknown keys, wrong types or out-of-range values
         """
         self.dt_config = merge(self.dt_config, config)
-        self.config = self._flat_highway_config(self.dt_config)
-        if self.config["offscreen_rendering"] is None:
-            self.config["offscreen_rendering"] = self.render_mode != "human"
+        self._show_config()
+        super().configure(None)  # highway-env's own checks (the OFFSCREEN_RENDERING deprecation warning)
+
+    def edit_highway_config(self, values: dict[str, Any]) -> None:
+        """Apply edits of ``self.config`` (highway-env keys) to the tree, validated.
+
+        :param values: keys and their new values (each replaces the old value whole)
+        :raises ConfigError: one line naming ``highway.<key>``
+        """
+        self.dt_config = set_highway_keys(self.dt_config, values)
+        self._show_config()
+
+    def _show_config(self) -> None:
+        """Derive ``self.config`` from the tree (in place, so a reference to it stays live)."""
+        flat = self._flat_highway_config(self.dt_config)
+        if flat["offscreen_rendering"] is None:
+            flat["offscreen_rendering"] = self.render_mode != "human"
+        if isinstance(self.config, FlatConfig):
+            self.config.refresh(flat)
+        else:
+            self.config = FlatConfig(self, flat)
+
+    def _apply_nested_config_edits(self) -> None:
+        """Edits made inside a table of ``self.config`` (``config["observation"]["type"] = ...``),
+        which the dict does not see, applied to the tree like any edit (before a reset)."""
+        flat = dict(self.config)
+        self._show_config()
+        changed = {k: v for k, v in flat.items() if k not in self.config or self.config[k] != v}
+        if changed:
+            self.edit_highway_config(changed)
 
     def define_spaces(self) -> None:
         obs_cfg = dict(self.config["observation"])
@@ -208,6 +245,7 @@ class DTHighwayEnv(HighwayEnv):
         if seed is not None:
             self._built_for = None
             self._world_seed = int(seed)
+        self._apply_nested_config_edits()
         return super().reset(seed=seed, options=options)
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
@@ -311,15 +349,28 @@ class DTHighwayEnv(HighwayEnv):
             self.camera = make_camera(cfg, scene)
             self._camera_key = key
 
-    def camera_frame(self) -> CameraFrame:
-        """The ego camera's frame at the current simulation step, rendered once per step.
+    def camera_image(self) -> CameraImage:
+        """The ego camera's image at the current simulation step, rendered once per step.
 
-        Observation, ``info`` and any caller (fusion, overlay, recorder) share this one
-        rendering; call it as often as needed.
+        Observation, ``info`` and any caller (fusion, overlay, recorder, a driver's senses)
+        share this one rendering; call it as often as needed.
 
-        :return: RGB, planar depth [m], instance ids and per-vehicle ground truth
+        :return: RGB, planar depth [m], the pose and the time (no ground truth)
         :raises RuntimeError: if the camera is off (``camera.enabled = false``) or before ``reset``
         """
+        return self._camera_frame()[0]
+
+    def camera_truth(self) -> CameraTruth:
+        """The ground truth of this step's camera image (instance ids, boxes per vehicle): for
+        evaluation, training labels and the simulated detector only, never for what a driver,
+        the fusion or the overlay is given.
+
+        :raises RuntimeError: if the camera is off (``camera.enabled = false``) or before ``reset``
+        """
+        return self._camera_frame()[1]
+
+    def _camera_frame(self) -> tuple[CameraImage, CameraTruth]:
+        """This step's rendering (image and truth), made on the first call of the step."""
         if self.camera is None:
             raise RuntimeError("the camera is off: set camera.enabled = true (and reset) to get frames")
         key = (self._episode, self.steps)
@@ -499,8 +550,8 @@ class DTHighwayEnv(HighwayEnv):
             "events": [ev.__dict__.copy() for ev in self._events],
         }
         if self.camera is not None:
-            # the camera's ground truth (instance boxes); the images are on camera_frame()
-            info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_frame().vehicles.values()]
+            # the camera's ground truth (instance boxes); the images are on camera_image()
+            info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_truth().vehicles.values()]
         if self.fusion is not None:
             info["adas"] = self.adas_output()
         # safety samples of every simulation step since the last info (evaluation)
@@ -526,7 +577,8 @@ class DTHighwayEnv(HighwayEnv):
     def _run_fusion(self) -> dict[str, Any]:
         """The ADAS pipeline on this step's frame and twin view (see :class:`~dt_highway.env.adas.AdasPipeline`)."""
         view = self.twin_view.vehicles if self.twin_view is not None else ()
-        return self.pipeline.run(self.camera_frame(), view, self.twin_now_s, self.sim_time_s)
+        image, truth = self._camera_frame()
+        return self.pipeline.run(image, truth, view, self.twin_now_s, self.sim_time_s)
 
     def _twin_info(self) -> list[dict[str, Any]] | None:
         """The delivered twin view with times on the episode clock [s] and ages [s]."""

@@ -2,7 +2,9 @@
 
 * :class:`TwinTaggedKinematics`: Kinematics plus what the twin delivered about each observed car;
 * :class:`OverlayKinematics`: Kinematics plus the overlay's marks as seen on the screen;
-* :class:`CameraObservation`: the ego camera's images, for vision agents.
+* :class:`CameraObservation`: the ego camera's images, for vision agents;
+* :class:`ResizedCamera`: a vision policy's view of the screen (image and overlay, at the size
+  it was trained on), for a policy driving through :class:`~dt_highway.env.seat.DriverSeat`.
 
 None of them reads ground truth: the twin columns come from the delivered view, the marks
 from the ADAS output through :func:`~dt_highway.env.senses.cars_under_marks`.
@@ -13,15 +15,18 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import ObservationType
 from scipy.optimize import linear_sum_assignment
 
 from dt_highway.camera.render import depth_to_uint8
+from dt_highway.config import ConfigError
 from dt_highway.env.senses import cars_under_marks
+from dt_highway.labels import AGGRESSIVE
+from dt_highway.overlay import draw_overlay
 from dt_highway.twin.cloud import TwinView
-from dt_highway.twin.tagger import AGGRESSIVE
 from dt_highway.world.observation import FastKinematicObservation
 from dt_highway.world.traffic import vehicle_id
 
@@ -126,7 +131,7 @@ class CameraObservation(ObservationType):
     Both are ``uint8`` images as stable-baselines3's ``MultiInputPolicy`` expects. Depth is
     encoded by :func:`~dt_highway.camera.render.depth_to_uint8` (linear, 255 at the camera,
     0 at ``camera.max_range_m`` and beyond); the float depth in metres is on
-    ``env.unwrapped.camera_frame().depth_m``. The frame is the env's one rendering of the
+    ``env.unwrapped.camera_image().depth_m``. The image is the env's one rendering of the
     step, shared with ``info`` and the fusion (it is not rendered twice).
 
     :param depth: also return the depth image
@@ -146,8 +151,44 @@ class CameraObservation(ObservationType):
         return spaces.Dict(parts)
 
     def observe(self) -> dict[str, np.ndarray]:
-        frame = self.env.camera_frame()
-        out = {"rgb": frame.rgb}
+        image = self.env.camera_image()
+        out = {"rgb": image.rgb}
         if self.depth:
-            out["depth"] = depth_to_uint8(frame.depth_m, self.env.dt_config.camera.max_range_m)[..., None]
+            out["depth"] = depth_to_uint8(image.depth_m, self.env.dt_config.camera.max_range_m)[..., None]
+        return out
+
+
+class ResizedCamera:
+    """A vision policy's view: the ego camera's image at the size it was trained on, with the
+    ADAS overlay drawn on it when there is one (what a driver sees on the screen).
+
+    :param env: the env (camera on)
+    :param size: ``(width, height)`` [px] the policy takes
+    :param depth: also the depth image (``uint8``, as :class:`CameraObservation`)
+    :raises ConfigError: if the camera is off
+    """
+
+    def __init__(self, env: DTHighwayEnv, size: tuple[int, int], depth: bool = False) -> None:
+        if not env.dt_config.camera.enabled:
+            raise ConfigError("a vision policy looks through the camera: run it with camera.enabled = true")
+        self.env, self.size, self.depth = env, size, depth
+
+    def space(self) -> spaces.Dict:
+        w, h = self.size
+        parts: dict[str, spaces.Space] = {"rgb": spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)}
+        if self.depth:
+            parts["depth"] = spaces.Box(0, 255, shape=(h, w, 1), dtype=np.uint8)
+        return spaces.Dict(parts)
+
+    def observe(self) -> dict[str, np.ndarray]:
+        image = self.env.camera_image()
+        rgb = image.rgb
+        adas = self.env.adas_output()
+        if adas is not None and adas["overlay"]:
+            rgb = draw_overlay(rgb, adas["overlay"])
+        same = rgb.shape[1] == self.size[0] and rgb.shape[0] == self.size[1]
+        out = {"rgb": rgb if same else cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)}
+        if self.depth:
+            d = depth_to_uint8(image.depth_m, self.env.dt_config.camera.max_range_m)
+            out["depth"] = (d if same else cv2.resize(d, self.size, interpolation=cv2.INTER_AREA))[..., None]
         return out

@@ -1,51 +1,26 @@
 """What a person at the wheel perceives: the one sanctioned read of the simulator's geometry.
 
-A driver sees the cars around it (where they are, how fast they go; never who drives them)
-and, in the ADAS condition, the overlay's markers on the camera image, on whichever car the
-marker's box sits. Both are read here from the simulator, the way eyes would read them, and
-nowhere else: drivers get what this module gives them.
+A driver sees the cars around it (where they are, how fast they go; never who drives them),
+a car drifting into its lane, and, in the ADAS condition, the overlay's markers on the camera
+image, on whichever car the marker's box sits. These are read here from the simulator, the
+way eyes would read them, and nowhere else; :func:`perceive` puts what a driver asked for
+(its :class:`~dt_highway.drivers.perception.SenseRequest`) into the typed
+:class:`~dt_highway.drivers.perception.Perception` it acts on. Drivers get what this module
+gives them, never the env, its ``info`` or a truth object.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from dt_highway.drivers.perception import Mark, OwnState, Perception, Seen, SenseRequest, Surroundings
 from dt_highway.perception.detect import iou
 
-
-@dataclass(frozen=True)
-class Seen:
-    """A neighbour as the driver sees it: ``gap_m`` bumper to bumper (inf: nobody), its speed."""
-
-    vehicle_id: int = -1
-    gap_m: float = math.inf
-    speed_mps: float = 0.0
-
-
-@dataclass(frozen=True)
-class Surroundings:
-    """What the driver sees around it at one moment.
-
-    :param t_s: time [s]
-    :param speed_mps: own speed [m/s]
-    :param lane: own lane index
-    :param n_lanes: lanes on the road
-    :param ahead: nearest vehicle ahead per lane offset (-1 left, 0 own, +1 right)
-    :param behind: nearest vehicle behind per lane offset
-    :param x_of: longitudinal offset of every vehicle nearby [m] and its lane offset, by id
-    """
-
-    t_s: float
-    speed_mps: float
-    lane: int
-    n_lanes: int
-    ahead: dict[int, Seen]
-    behind: dict[int, Seen]
-    x_of: dict[int, tuple[float, int]]
+ENTERING_RANGE_M = 80.0
+"""How far ahead a car entering the ego's lane is looked for [m]"""
 
 
 def look_around(env: Any, range_m: float = 150.0) -> Surroundings:
@@ -93,19 +68,20 @@ def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set
     return cars_under_marks(env, adas.get("overlay") if adas else None, min_iou)
 
 
-def cars_under_marks(env: Any, overlay: list[dict[str, Any]] | None, min_iou: float = 0.3) -> set[int]:
+def cars_under_marks(env: Any, overlay: Sequence[Mapping[str, Any]] | None, min_iou: float = 0.3) -> set[int]:
     """For each overlay item, the vehicle whose visible outline in this step's camera image
     fits the item's box best (IoU >= ``min_iou``): which car a person sees the marker on,
     right or wrong.
 
-    :param env: the env (unwrapped), for the camera frame the overlay was drawn on
+    :param env: the env (unwrapped), for the camera image the overlay was drawn on (its
+        outlines are read from the image's ground truth, as eyes read a picture)
     :param overlay: the overlay items (``box`` [px]); ``None`` or empty: nothing marked
     :param min_iou: least overlap between marker and outline [-]
     :return: ids of the vehicles under a marker
     """
     if not overlay:
         return set()
-    seen = [(vid, t.visible_box) for vid, t in env.camera_frame().vehicles.items() if t.visible_box is not None]
+    seen = [(vid, t.visible_box) for vid, t in env.camera_truth().vehicles.items() if t.visible_box is not None]
     if not seen:
         return set()
     outlines = np.array([b for _, b in seen], dtype=float)
@@ -116,3 +92,84 @@ def cars_under_marks(env: Any, overlay: list[dict[str, Any]] | None, min_iou: fl
         if fit[j] >= min_iou:
             marked.add(int(seen[j][0]))
     return marked
+
+
+def cars_entering(env: Any, range_m: float = ENTERING_RANGE_M) -> Seen | None:
+    """The nearest car ahead whose body already reaches into the ego's lane, its centre in
+    that lane or still in the next one (a car changing into the lane, as a driver sees it
+    drift in).
+
+    :param env: the dt-highway env (unwrapped)
+    :param range_m: how far ahead the driver looks for it [m]
+    :return: the car (bumper gap [m], speed [m/s]), or ``None``
+    """
+    ego = env.vehicle
+    lane = env.road.network.get_lane(ego.lane_index)
+    ex = float(ego.position[0])
+    centre_y = float(lane.position(ex, 0.0)[1])
+    best: Seen | None = None
+    for v in env.road.vehicles:
+        if v is ego:
+            continue
+        dx = float(v.position[0]) - ex
+        if not 0.0 < dx < range_m:
+            continue
+        if abs(float(v.position[1]) - centre_y) >= lane.width_at(0.0) / 2 + v.WIDTH / 2:
+            continue  # not in the lane, not even in part
+        gap = dx - (v.LENGTH + ego.LENGTH) / 2
+        if best is None or gap < best.gap_m:
+            best = Seen(int(getattr(v, "dt_id", -1)), gap, float(v.speed))
+    return best
+
+
+def own_state(env: Any) -> OwnState:
+    """The ego's own state, as its driver knows it (speedometer, lane, a crash).
+
+    :param env: the dt-highway env (unwrapped)
+    """
+    ego = env.vehicle
+    lane_index = ego.lane_index
+    n_lanes = len(env.road.network.graph[lane_index[0]][lane_index[1]]) if lane_index else 0
+    return OwnState(float(ego.speed), float(ego.heading), int(lane_index[2]) if lane_index else -1, n_lanes,
+                    bool(ego.crashed))
+
+
+def _mark(item: Mapping[str, Any]) -> Mark:
+    """An overlay item as it is drawn: its box and label, and the numbers printed beside it."""
+    x1, y1, x2, y2 = (float(v) for v in item["box"])
+    conf, dist = item.get("confidence"), item.get("distance_m")
+    return Mark((x1, y1, x2, y2), str(item.get("label", "")), None if conf is None else float(conf),
+                None if dist is None else float(dist))
+
+
+def perceive(env: Any, request: SenseRequest, observation: Any = None,
+             overlay: Sequence[Mapping[str, Any]] | None = None) -> Perception:
+    """What a driver perceives now, for what it asked: the one place a
+    :class:`~dt_highway.drivers.perception.Perception` is made from the env.
+
+    :param env: the dt-highway env (unwrapped)
+    :param request: what the driver looks at
+    :param observation: a policy's observation of this step (made by its
+        :class:`~dt_highway.env.seat.DriverSeat`), passed through
+    :param overlay: the overlay items to see instead of this step's ADAS output (tests,
+        replays); ``None``: the env's own (none in the baseline condition)
+    :return: the perception (only the requested parts filled)
+    """
+    marks: tuple[Mark, ...] = ()
+    under: frozenset[int] = frozenset()
+    if request.marks:
+        if overlay is None:
+            adas = env.adas_output()
+            overlay = adas.get("overlay") if adas else None
+        marks = tuple(_mark(item) for item in overlay or ())
+        under = frozenset(cars_under_marks(env, overlay))
+    return Perception(
+        time_s=float(env.sim_time_s),
+        own=own_state(env),
+        surroundings=look_around(env) if request.surroundings else None,
+        entering=cars_entering(env) if request.entering else None,
+        marks=marks,
+        cars_under_marks=under,
+        image=env.camera_image() if request.image and env.camera is not None else None,
+        observation=observation,
+    )

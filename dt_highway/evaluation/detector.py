@@ -18,8 +18,11 @@ import contextlib
 import io
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+from pycocotools.coco import COCO
+from pycocotools.cocoeval import COCOeval
 
 from dt_highway.perception.detect import iou
 from dt_highway.perception.learned.data import TRAIN_SEED0, SceneSettings, make_frame
@@ -43,7 +46,7 @@ def evaluate(
     height_px: int | None = None,
     batch: int = 16,
     progress: Callable[[int], None] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """AP, AP50, AP75 and recall at IoU 0.7 of a detector on held-out frames.
 
     :param detector: the detector
@@ -56,15 +59,15 @@ def evaluate(
     :return: the numbers, with the set's description
     :raises ValueError: if the set would overlap the training seeds
     """
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
-
     if frames < 1:
         raise ValueError(f"frames must be >= 1 (got {frames})")
     if seed < 0 or seed + frames > TRAIN_SEED0:
         raise ValueError(f"held-out seeds must lie in 0..{TRAIN_SEED0 - 1} (got {seed}..{seed + frames - 1})")
-    settings = SceneSettings(width_px or detector.arch.width_px, height_px or detector.arch.height_px, vary_camera=False)
-    images, annotations, detections = [], [], []
+    settings = SceneSettings(width_px or detector.arch.width_px, height_px or detector.arch.height_px,
+                             vary_camera=False)
+    images: list[dict[str, Any]] = []
+    annotations: list[dict[str, Any]] = []
+    detections: list[dict[str, Any]] = []
     operating = {"hits": 0, "scored": 0, "false": 0, "ignored": 0}
     t_detect = 0.0
     for start in range(seed, seed + frames, batch):
@@ -73,13 +76,13 @@ def evaluate(
         found = detector.detect_batch([f.rgb for f in labelled], [f.depth_m for f in labelled],
                                       min_score=min(0.01, detector.min_score))
         t_detect += time.perf_counter() - t
-        for f, s, det in zip(labelled, range(start, start + len(labelled)), found):
+        for f, s, det in zip(labelled, range(start, start + len(labelled)), found, strict=True):
             images.append({"id": s, "width": settings.width_px, "height": settings.height_px})
-            for b, keep in zip(f.boxes, f.scored):
+            for b, keep in zip(f.boxes, f.scored, strict=True):
                 area = float((b[2] - b[0]) * (b[3] - b[1]))
                 annotations.append({"id": len(annotations) + 1, "image_id": s, "category_id": 1, "bbox": _coco_box(b),
                                     "area": area, "iscrowd": int(not keep)})
-            for b, sc in zip(det.boxes, det.scores):
+            for b, sc in zip(det.boxes, det.scores, strict=True):
                 detections.append({"image_id": s, "category_id": 1, "bbox": _coco_box(b), "score": float(sc)})
             # at the operating score: greedy matching at IoU 0.7, highest score first; a
             # detection on an ignored vehicle is neither a hit nor a false alarm

@@ -12,48 +12,55 @@ import cv2
 import numpy as np
 
 from dt_highway.camera.export import colourise_depth, colourise_instance, write_png
-from dt_highway.camera.render import CameraFrame
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.truth import CameraTruth
 from dt_highway.env import DTHighwayEnv
 from dt_highway.overlay import draw_overlay
 
 
-def draw_boxes(rgb: np.ndarray, frame: CameraFrame) -> np.ndarray:
+def draw_boxes(rgb: np.ndarray, truth: CameraTruth) -> np.ndarray:
     """A copy of ``rgb`` with each vehicle's visible box (green, with id and visibility) and
     amodal box (thin yellow) drawn: a look at the ground truth.
+
+    :param rgb: the image to draw on
+    :param truth: its ground truth
     """
     out = np.ascontiguousarray(rgb).copy()
-    for truth in frame.vehicles.values():
-        x1, y1, x2, y2 = (int(round(v)) for v in truth.amodal_box)
+    for t in truth.vehicles.values():
+        x1, y1, x2, y2 = (int(round(v)) for v in t.amodal_box)
         cv2.rectangle(out, (x1, y1), (x2, y2), (240, 220, 40), 1)
-        if truth.visible_box is None:
+        if t.visible_box is None:
             continue
-        x1, y1, x2, y2 = (int(round(v)) for v in truth.visible_box)
+        x1, y1, x2, y2 = (int(round(v)) for v in t.visible_box)
         cv2.rectangle(out, (x1, y1), (x2, y2), (40, 230, 60), 1)
         if x2 - x1 >= 12:
-            cv2.putText(out, f"{truth.vehicle_id} {truth.visibility:.2f}", (x1, max(9, y1 - 3)),
+            cv2.putText(out, f"{t.vehicle_id} {t.visibility:.2f}", (x1, max(9, y1 - 3)),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.32, (40, 230, 60), 1, cv2.LINE_AA)
     return out
 
 
-def write_frame(frame: CameraFrame, out: Path, index: int, max_range_m: float, raw: bool = False) -> list[Path]:
+def write_frame(image: CameraImage, truth: CameraTruth, out: Path, index: int, max_range_m: float,
+                raw: bool = False) -> list[Path]:
     """Write one frame's pictures: ``rgb``, ``depth`` (colour-mapped), ``instance`` and
     ``boxes`` PNGs, and with ``raw`` an ``.npz`` of float depth [m] and int32 instance ids.
 
+    :param image: the camera image
+    :param truth: its ground truth
     :return: the paths written
     """
     stem = f"{index:04d}"
     files = {
-        out / f"rgb_{stem}.png": frame.rgb,
-        out / f"depth_{stem}.png": colourise_depth(frame.depth_m, max_range_m),
-        out / f"instance_{stem}.png": colourise_instance(frame.instance),
-        out / f"boxes_{stem}.png": draw_boxes(frame.rgb, frame),
+        out / f"rgb_{stem}.png": image.rgb,
+        out / f"depth_{stem}.png": colourise_depth(image.depth_m, max_range_m),
+        out / f"instance_{stem}.png": colourise_instance(truth.instance),
+        out / f"boxes_{stem}.png": draw_boxes(image.rgb, truth),
     }
     for path, img in files.items():
         write_png(path, img)
     paths = list(files)
     if raw:
         path = out / f"frame_{stem}.npz"
-        np.savez_compressed(path, depth_m=frame.depth_m, instance=frame.instance)
+        np.savez_compressed(path, depth_m=image.depth_m, instance=truth.instance)
         paths.append(path)
     return paths
 
@@ -84,7 +91,7 @@ def record_frames(
     env.reset(seed=seed)
     max_range = config.camera.max_range_m
     written: list[Path] = []
-    seen = set()
+    seen: set[int] = set()
     with (out / "frames.jsonl").open("w") as log:
         for i in range(frames):
             if i:
@@ -92,18 +99,18 @@ def record_frames(
                     _, _, terminated, truncated, _ = env.step(0)
                     if terminated or truncated:
                         env.reset()
-            frame = env.camera_frame()
-            written += write_frame(frame, out, i, max_range, raw)
+            image, truth = env.camera_image(), env.camera_truth()
+            written += write_frame(image, truth, out, i, max_range, raw)
             if env.adas is not None:  # the ADAS view: the marks a driver sees, drawn on the frame
                 path = out / f"overlay_{i:04d}.png"
-                cv2.imwrite(str(path), draw_overlay(frame.rgb, env.adas["overlay"])[..., ::-1])
+                cv2.imwrite(str(path), draw_overlay(image.rgb, env.adas["overlay"])[..., ::-1])
                 written.append(path)
-            seen.update(v for v, t in frame.vehicles.items() if t.visible_box is not None)
+            seen.update(v for v, t in truth.vehicles.items() if t.visible_box is not None)
             log.write(json.dumps({
                 "index": i,
-                "time_s": round(frame.time_s, 6),
-                "pose": {"x_m": frame.pose.x_m, "y_m": frame.pose.y_m, "heading_rad": frame.pose.heading_rad},
-                "vehicles": [t.to_dict() for t in frame.vehicles.values()],
+                "time_s": round(image.time_s, 6),
+                "pose": {"x_m": image.pose.x_m, "y_m": image.pose.y_m, "heading_rad": image.pose.heading_rad},
+                "vehicles": [t.to_dict() for t in truth.vehicles.values()],
             }) + "\n")
             log.flush()
             if progress is not None:

@@ -18,23 +18,39 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
+from dt_highway.camera.pinhole import PinholeCamera
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.truth import CameraTruth
 from dt_highway.config import DTConfig, deep_merge, dotted_tree, merge
+from dt_highway.env import DTHighwayEnv
 from dt_highway.jsonio import dump_json
-from dt_highway.perception import METHODS, Fusion, fusion_settings, iou, make_detector
+from dt_highway.perception import (
+    METHODS,
+    Detections,
+    Fusion,
+    Placement,
+    fusion_settings,
+    iou,
+    make_detector,
+    run_detector,
+)
 from dt_highway.perception.matching import containing
+from dt_highway.twin.cloud import TwinVehicleView
 
 THRESHOLDS = np.round(np.arange(0.05, 1.0, 0.05), 2)
 """IoU thresholds of the accuracy curve"""
 
 
-@dataclass
+@dataclass(frozen=True)
 class BenchmarkSettings:
     """How frames and targets are chosen.
 
@@ -123,19 +139,16 @@ def run_matching(
     :param progress: called with 1 per evaluation frame
     :return: per-frame outcomes
     """
-    from dt_highway.env import DTHighwayEnv
-
     cfg = merge(config, {"camera": {"enabled": True}, "ego": {"autopilot": True}, "fusion": {"enabled": False}})
     env = DTHighwayEnv(config=cfg.to_dict())
     env.reset(seed=seed)
     streams = np.random.SeedSequence([seed, 0xF05E]).spawn(2 + len(methods))
     detector = make_detector(cfg.detector, np.random.default_rng(streams[0]))
     pick = np.random.default_rng(streams[1])
-    fusions = {m: Fusion(env.camera.camera, fusion_settings(cfg.fusion, m), np.random.default_rng(streams[2 + i]))
+    fusions = {m: Fusion(_camera(env), fusion_settings(cfg.fusion, m), np.random.default_rng(streams[2 + i]))
                for i, m in enumerate(methods)}
     result = MatchingResult(methods=tuple(methods), settings=_settings(cfg, seed, settings))
     episode, step = 0, 0
-    anchor_h = cfg.fusion.anchor_height_m
     max_steps = 200 * frames + 1000
     while len(result.rows) < frames:
         if step >= max_steps:
@@ -149,32 +162,14 @@ def run_matching(
                 f.reset()
             episode += 1
             continue
-        frame = env.camera_frame()
+        frame, camera_truth = env.camera_image(), env.camera_truth()
         view = env.twin_view.vehicles if env.twin_view is not None else ()
-        detections = detector.detect(frame)
+        detections = run_detector(detector, frame, camera_truth)
         now = env.twin_now_s
         placed = {m: f.step(frame, detections, view, now) for m, f in fusions.items()}
         if step % settings.every:
             continue
-        # targets: twin vehicles the camera shows well; ground truth is read here only
-        truth = frame.vehicles
-        by_id = {int(getattr(v, "dt_id", -1)): v for v in env.road.vehicles}
-        visible = {vid: t for vid, t in truth.items() if t.visible_box is not None}
-        boxes_gt = np.array([t.visible_box for t in visible.values()]).reshape(-1, 4)
-        cands, tricky = [], []
-        for tv in view:
-            t = truth.get(tv.vehicle_id)
-            if t is None or t.visible_box is None or tv.vehicle_id not in by_id:
-                continue
-            if t.visibility < settings.min_visibility or t.visible_box[3] - t.visible_box[1] < settings.min_height_px:
-                continue
-            v = by_id[tv.vehicle_id]
-            true_anchor = env.camera.camera.project(np.array([[v.position[0], v.position[1], anchor_h]]), frame.pose)
-            n_in = len(containing(boxes_gt, true_anchor.uv_px[0])) if true_anchor.in_front[0] else 0
-            touching = (iou(np.array([t.visible_box]), boxes_gt)[0] > 0).sum() - 1 > 0 or _touches(t.visible_box, boxes_gt)
-            cands.append(tv.vehicle_id)
-            if n_in >= 2 or touching:
-                tricky.append(tv.vehicle_id)
+        cands, tricky = _candidates(env, frame, camera_truth, view, settings, cfg.fusion.anchor_height_m)
         if not cands:
             continue
         if tricky and pick.random() < settings.tricky_share:
@@ -182,20 +177,13 @@ def run_matching(
         else:
             target = int(pick.choice(cands))
             is_tricky = target in tricky
-        gt_box = np.array([truth[target].visible_box])
+        truth = camera_truth.vehicles
         row: dict[str, Any] = {
             "frame": len(result.rows), "episode": episode, "time_s": round(frame.time_s, 3), "target": target,
             "tricky": is_tricky, "visibility": round(truth[target].visibility, 4),
             "depth_m": round(truth[target].depth_m, 3), "n_detections": len(detections),
         }
-        p_fusion = placed.get("fusion", placed[methods[0]]).get(target)
-        anchor = np.array(p_fusion.anchor_uv) if p_fusion is not None else np.array([np.nan, np.nan])
-        row["ambiguous"] = bool(np.isfinite(anchor).all() and len(containing(detections.boxes, anchor)) >= 2)
-        for m in methods:
-            p = placed[m].get(target)
-            box = None if p is None else p.box
-            row[f"iou_{m}"] = 0.0 if box is None else float(iou(np.array([box]), gt_box)[0, 0])
-            row[f"rule_{m}"] = "none" if p is None else p.rule
+        row.update(_outcomes(placed, methods, target, np.array([truth[target].visible_box]), detections))
         result.rows.append(row)
         if progress is not None:
             progress(1)
@@ -203,11 +191,66 @@ def run_matching(
     return result
 
 
+def _camera(env: DTHighwayEnv) -> PinholeCamera:
+    """The camera model of an env whose camera is on."""
+    if env.camera is None:  # run_matching switches camera.enabled on
+        raise RuntimeError("the matching benchmark needs the env's camera")
+    return env.camera.camera
+
+
+def _candidates(
+    env: DTHighwayEnv, frame: CameraImage, camera_truth: CameraTruth,
+    view: Sequence[TwinVehicleView], settings: BenchmarkSettings, anchor_height_m: float,
+) -> tuple[list[int], list[int]]:
+    """The frame's possible targets: twin vehicles the camera shows well; ground truth is read here only.
+
+    :return: the candidates' ids, and those of the tricky ones among them
+    """
+    truth = camera_truth.vehicles
+    by_id = {int(getattr(v, "dt_id", -1)): v for v in env.road.vehicles}
+    visible = {vid: t for vid, t in truth.items() if t.visible_box is not None}
+    boxes_gt = np.array([t.visible_box for t in visible.values()]).reshape(-1, 4)
+    cands, tricky = [], []
+    for tv in view:
+        t = truth.get(tv.vehicle_id)
+        if t is None or t.visible_box is None or tv.vehicle_id not in by_id:
+            continue
+        too_low = t.visible_box[3] - t.visible_box[1] < settings.min_height_px
+        if t.visibility < settings.min_visibility or too_low:
+            continue
+        v = by_id[tv.vehicle_id]
+        true_anchor = _camera(env).project(np.array([[v.position[0], v.position[1], anchor_height_m]]), frame.pose)
+        n_in = len(containing(boxes_gt, true_anchor.uv_px[0])) if true_anchor.in_front[0] else 0
+        touching = (
+            (iou(np.array([t.visible_box]), boxes_gt)[0] > 0).sum() - 1 > 0 or _touches(t.visible_box, boxes_gt)
+        )
+        cands.append(tv.vehicle_id)
+        if n_in >= 2 or touching:
+            tricky.append(tv.vehicle_id)
+    return cands, tricky
+
+
+def _outcomes(placed: dict[str, dict[int, Placement]], methods: tuple[str, ...], target: int, gt_box: np.ndarray,
+              detections: Detections) -> dict[str, Any]:
+    """A frame's row entries: whether the anchor was ambiguous, and each method's IoU and rule for the target."""
+    row: dict[str, Any] = {}
+    p_fusion = placed.get("fusion", placed[methods[0]]).get(target)
+    anchor = np.array(p_fusion.anchor_uv) if p_fusion is not None else np.array([np.nan, np.nan])
+    row["ambiguous"] = bool(np.isfinite(anchor).all() and len(containing(detections.boxes, anchor)) >= 2)
+    for m in methods:
+        p = placed[m].get(target)
+        box = None if p is None else p.box
+        row[f"iou_{m}"] = 0.0 if box is None else float(iou(np.array([box]), gt_box)[0, 0])
+        row[f"rule_{m}"] = "none" if p is None else p.rule
+    return row
+
+
 def _touches(box: tuple[float, float, float, float], others: np.ndarray, margin_px: float = 1.0) -> bool:
     """Another box (not ``box`` itself) overlaps ``box`` grown by ``margin_px``."""
     b = np.asarray(box, dtype=float)
     grown = b + np.array([-margin_px, -margin_px, margin_px, margin_px])
-    hit = (others[:, 0] <= grown[2]) & (grown[0] <= others[:, 2]) & (others[:, 1] <= grown[3]) & (grown[1] <= others[:, 3])
+    hit = ((others[:, 0] <= grown[2]) & (grown[0] <= others[:, 2])
+           & (others[:, 1] <= grown[3]) & (grown[1] <= others[:, 3]))
     same = np.all(np.isclose(others, b), axis=1)
     return bool((hit & ~same).any())
 
@@ -252,18 +295,14 @@ def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
 
 def plot_curve(curve: list[dict[str, Any]], path: Path, title: str = "") -> None:
     """Accuracy against IoU threshold, one line per method (solid: all frames, dashed: tricky), like Fig. 6."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=110)
     methods = list(dict.fromkeys(r["method"] for r in curve))
     for i, m in enumerate(methods):
         for sub, style in (("all", "-"), ("tricky", "--")):
             pts = [(r["iou_threshold"], r["accuracy"]) for r in curve if r["method"] == m and r["subset"] == sub]
             if pts and not all(math.isnan(a) for _, a in pts):
-                x, y = zip(*pts)
+                x, y = zip(*pts, strict=True)
                 ax.plot(x, y, style, color=f"C{i}", label=f"{m} ({sub})", marker="o" if sub == "all" else None, ms=3)
     ax.axvline(0.7, color="0.6", lw=0.8)
     ax.set_xlabel("IoU threshold")
@@ -325,11 +364,7 @@ def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
 
     :return: the paths written
     """
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "sweep.csv", out / "sweep.json", out / "sweep.png"]
     with paths[0].open("w", newline="") as fh:
@@ -339,8 +374,9 @@ def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     paths[1].write_text(dump_json(rows) + "\n")
     methods = list(dict.fromkeys(r["method"] for r in rows))
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.6), dpi=110, sharey=True)
-    labels = {"gnss_noise_sigma_m": "GNSS noise sigma [m]", "latency_mean_s": "uplink latency [s]", "rate_hz": "update rate [Hz]"}
-    for ax, (name, _, values) in zip(axes, SWEEP):
+    labels = {"gnss_noise_sigma_m": "GNSS noise sigma [m]", "latency_mean_s": "uplink latency [s]",
+              "rate_hz": "update rate [Hz]"}
+    for ax, (name, _, values) in zip(axes, SWEEP, strict=True):
         for i, m in enumerate(methods):
             y = [next(r["acc_iou70"] for r in rows if r["parameter"] == name and r["value"] == v and r["method"] == m)
                  for v in values]

@@ -12,27 +12,32 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
+from dt_highway.drivers import Driver, load_driver
+from dt_highway.env.seat import DriverSeat
 from dt_highway.metrics.safety import trial_metrics
 
 
-def run_episode(driver: Any, env: Any, seed: int) -> dict[str, Any]:
-    """One episode of ``driver`` in ``env`` from ``reset(seed)``.
+def run_episode(driver: Driver, env: Any, seed: int) -> dict[str, Any]:
+    """One episode of ``driver`` in ``env`` from ``reset(seed)``; the driver acts on what its
+    seat perceives (:class:`~dt_highway.env.seat.DriverSeat`), ``info`` is for the metrics.
 
     :return: ``return``, ``steps``, ``collision`` and the trial metrics (units in the names)
     """
     u = env.unwrapped
-    obs, info = env.reset(seed=seed)
-    driver.reset(u, seed)
+    _, info = env.reset(seed=seed)
+    seat = DriverSeat(u, driver.senses)
+    driver.reset(seed)
     samples, cut_ins = list(info["safety"]["samples"]), list(info["safety"]["cut_ins"])
     total, steps = 0.0, 0
     while True:
-        action = np.asarray(driver.act(u, obs, info), dtype=float)
-        obs, reward, terminated, truncated, info = env.step(action)
+        action = np.asarray(driver.act(seat.perceive()), dtype=float)
+        _, reward, terminated, truncated, info = env.step(action)
         total += float(reward)
         steps += 1
         samples += info["safety"]["samples"]
@@ -50,7 +55,7 @@ def _mean(values: list[float]) -> float:
 
 def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = "envs/highway-trial.toml",
              condition: str = "adas", overrides: tuple[str, ...] = (),
-             progress: Callable[[int], None] | None = None, driver: Any = None) -> dict[str, Any]:
+             progress: Callable[[int], None] | None = None, driver: Driver | None = None) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed .. seed + episodes - 1``) of a driver.
 
     :param driver_path: ``agents/<name>.zip`` or ``agents/<driver>.toml``
@@ -64,10 +69,6 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
     :return: the means over episodes and the episodes themselves
     :raises ConfigError: on a bad driver, scenario, condition or count
     """
-    import gymnasium as gym
-
-    from dt_highway.drivers import load_driver
-
     if episodes < 1:
         raise ConfigError(f"--episodes must be >= 1 (got {episodes})")
     driver = driver if driver is not None else load_driver(driver_path)
@@ -75,8 +76,9 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
     env = gym.make("dt-highway-v0", config=cfg.to_dict())
     rows = []
     try:
-        if hasattr(driver, "model"):
-            driver.reset(env.unwrapped, seed)  # a policy that cannot drive this env says so before any episode
+        if hasattr(driver, "model"):  # a policy that cannot drive this env says so before any episode
+            DriverSeat(env.unwrapped, driver.senses)
+            driver.reset(seed)
         if progress is not None:
             progress(0)  # checks done: the episodes start
         for k in range(episodes):

@@ -338,7 +338,7 @@ class _Trial:
                   len(u.road.network.graph[ego.lane_index[0]][ego.lane_index[1]]), self.duration - self.t_sim,
                   self.label, self.paused)
         marks = (self.info.get("adas") or {}).get("overlay") if self.cfg_fusion else None
-        snap = _Snapshot(u.camera_frame().rgb, marks, hud, self.env.render() if self.show_map else None, self.n_steps)
+        snap = _Snapshot(u.camera_image().rgb, marks, hud, self.env.render() if self.show_map else None, self.n_steps)
         with self.lock:
             self.snapshot = snap
         if self.t_sim + 1e-9 >= self.next_shot:  # what the window shows of this step, saved

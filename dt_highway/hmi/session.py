@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import re
 import zlib
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
 from dt_highway.hmi.drive import DriveOptions, run_drive, show_card, trial_dir
+from dt_highway.hmi.keys import KeyScript
+from dt_highway.metrics.trial_log import load_trial
 
 PRACTICE_SEED_OFFSET = 1000
 """The practice trial's traffic seed is the session's seed plus this"""
@@ -40,14 +43,14 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None) -
                        duration_s=practice_duration_s if practice_duration_s is not None else base.duration_s)
     trials = [practice, replace(base, condition=first, practice=False), replace(base, condition=second, practice=False)]
     if base.screenshots is not None:  # one folder per trial, or their screenshots would overwrite each other
-        trials = [replace(t, screenshots=base.screenshots / trial_dir(t.out, t.participant, t.condition, t.practice).name)
-                  for t in trials]
+        trials = [
+            replace(t, screenshots=base.screenshots / trial_dir(t.out, t.participant, t.condition, t.practice).name)
+            for t in trials
+        ]
     return trials
 
 
 def _completed(opts: DriveOptions) -> bool:
-    from dt_highway.metrics.trial_log import load_trial
-
     d = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
     try:
         return load_trial(d).meta.get("status") == "completed"
@@ -56,7 +59,7 @@ def _completed(opts: DriveOptions) -> bool:
 
 
 def run_session(base: DriveOptions, practice_duration_s: float | None = None,
-                say: Any = print) -> list[dict[str, Any]]:
+                say: Callable[[str], object] = print) -> list[dict[str, Any]]:
     """Run the session's missing trials, with a break screen before each but the first.
 
     :param base: shared options (``condition`` is ignored: the plan sets it)
@@ -80,8 +83,6 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
                 say("session stopped at the break")
                 break
         if opts.keys_from is not None:  # each trial replays the script from its start
-            from dt_highway.hmi.keys import KeyScript
-
             opts = replace(opts, keys_from=KeyScript(opts.keys_from.events))
         result = run_drive(opts)
         size = tuple(result.get("size_px", (640, 360)))

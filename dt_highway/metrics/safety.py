@@ -36,10 +36,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
+
+if TYPE_CHECKING:
+    from highway_env.vehicle.kinematics import Vehicle
 
 TTC_STAR_S = 3.0
 """TET/TIT threshold TTC* [s] (SUMO's SSM device default)"""
@@ -155,7 +158,7 @@ class SafetyMonitor:
         """Start a new episode."""
         self._prev_speed, self._prev_lane, self._in_lane = None, None, set()
 
-    def sample(self, t_s: float, dt_s: float, ego: Any, lane_centre_y_m: float, others: Sequence[Any],
+    def sample(self, t_s: float, dt_s: float, ego: Vehicle, lane_centre_y_m: float, others: Sequence[Vehicle],
                ids: Sequence[int]) -> tuple[SafetySample, list[CutIn]]:
         """One step's sample.
 
@@ -178,7 +181,7 @@ class SafetyMonitor:
         lead_v = 0.0
         in_lane: set[int] = set()
         gaps: dict[int, float] = {}
-        for v, vid in zip(others, ids):
+        for v, vid in zip(others, ids, strict=True):
             dx = float(v.position[0]) - ex
             if dx <= 0.0:
                 continue

@@ -24,14 +24,18 @@ import json
 import os
 import socket
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from dt_highway._version import __version__
 from dt_highway.jsonio import json_safe
+from dt_highway.metrics.safety import trial_metrics
 
 META, STEPS, EVENTS = "meta.json", "steps.csv", "events.jsonl"
 STEP_COLUMNS = (
@@ -116,7 +120,9 @@ class TrialWriter:
     def __enter__(self) -> TrialWriter:
         return self
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         if exc_type is not None:
             self.close("aborted", f"{exc_type.__name__}: {exc}")
         else:
@@ -135,12 +141,14 @@ def write_parquet(directory: str | Path, trial: Trial | None = None) -> Path:
     :raises ValueError: if the trial is not completed
     """
     try:
-        import pyarrow  # noqa: F401
+        import pyarrow  # lazy: optional extra (pip install dt-highway[parquet]) # noqa: F401
     except ImportError:
         raise ImportError("Parquet output needs pyarrow: pip install 'dt-highway[parquet]'") from None
     trial = trial if trial is not None else load_trial(directory)
     if trial.meta.get("status") != "completed":
-        raise ValueError(f"trial {trial.path} is {trial.meta.get('status')}: Parquet is written only for completed trials")
+        raise ValueError(
+            f"trial {trial.path} is {trial.meta.get('status')}: Parquet is written only for completed trials"
+        )
     out = Path(directory) / "steps.parquet"
     tmp = out.with_name(out.name + ".tmp")
     trial.steps.to_parquet(tmp, index=False)
@@ -175,8 +183,6 @@ class Trial:
 
     def metrics(self) -> dict[str, Any]:
         """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`)."""
-        from dt_highway.metrics.safety import trial_metrics
-
         return trial_metrics(self.steps, self.dt_s, self.cut_ins)
 
 
@@ -189,7 +195,7 @@ def _complete_lines(path: Path) -> str:
     return data[: cut + 1].decode("utf-8", errors="replace") if cut >= 0 else ""
 
 
-def _alive(pid: Any, host: Any) -> bool:
+def _alive(pid: object, host: object) -> bool:
     if host != socket.gethostname() or not isinstance(pid, int):
         return False
     try:
@@ -238,13 +244,13 @@ class TrialRecorder:
     :param log: the trial's writer
     """
 
-    def __init__(self, log: Any) -> None:
+    def __init__(self, log: TrialWriter) -> None:
         self.log = log
         self.shown: dict[int, str] = {}
         self._lane: int | None = None
         self._crashed = False
 
-    def record(self, info: dict[str, Any], action: Any, keys: str = "") -> None:
+    def record(self, info: dict[str, Any], action: Sequence[float] | np.ndarray, keys: str = "") -> None:
         """Log the samples and events of one env step.
 
         :param info: the step's info (``safety``, ``adas``, ``time_s``)

@@ -15,6 +15,7 @@ from dt_highway.perception.detect import (
     SimulatedDetector,
     SimulatedDetectorSettings,
     iou,
+    run_detector,
 )
 from dt_highway.perception.fusion import METHODS, Fusion, FusionSettings, Placement
 from dt_highway.perception.matching import (
@@ -28,7 +29,7 @@ from dt_highway.perception.matching import (
 from dt_highway.perception.tracking import BoxTracker
 
 
-def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -> Detector:
+def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -> Detector | SimulatedDetector:
     """The detector described by a ``detector`` config section.
 
     :param cfg: :class:`~dt_highway.config.DetectorConfig`
@@ -89,5 +90,6 @@ __all__ = [
     "match_distance",
     "match_each",
     "match_joint",
+    "run_detector",
     "sample_regions",
 ]

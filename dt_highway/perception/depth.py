@@ -147,7 +147,7 @@ def box_distances(
     if not len(area):
         return np.zeros(0)
     draw_u, draw_v = rng.random((len(area), n)), rng.random((len(area), n))
-    norm = ray_norm if reference == "range" else depth_m
+    norm = ray_norm if reference == "range" and ray_norm is not None else depth_m  # (given for "range": checked above)
     samples, inside = _sample(depth_m, area, draw_u, draw_v, norm, reference == "range")
     # the mean stays in numpy: its summation order defines the last bit
     out = samples.sum(axis=1) / n if reducer == "mean" else _row_medians(samples)

@@ -1,17 +1,19 @@
-"""Detectors: a camera frame in, boxes out (the paper's object detection, section III-B).
+"""Detectors: a camera image in, boxes out (the paper's object detection, section III-B).
 
-Every detector has one method, :meth:`Detector.detect`, that takes a
-:class:`~dt_highway.camera.render.CameraFrame` and returns :class:`Detections`: boxes
+A detector (:class:`Detector`) has one method, ``detect(image)``, that takes a
+:class:`~dt_highway.camera.render.CameraImage` and returns :class:`Detections`: boxes
 ``(x1, y1, x2, y2)`` [px] in the image frame of :mod:`dt_highway.camera.render`, a score
-in ``[0, 1]`` and a class (0 = vehicle). A learned detector reads only ``frame.rgb`` (and
-``frame.depth_m`` if it wants depth).
+in ``[0, 1]`` and a class (0 = vehicle). A learned detector reads only ``image.rgb`` (and
+``image.depth_m`` if it wants depth).
 
-The default :class:`SimulatedDetector` stands in for a real one: it starts from the
-renderer's ground truth (each vehicle's visible box and visibility) and adds the errors a
+The default :class:`SimulatedDetector` stands in for a real one. It is a sensor model: it
+starts from the renderer's ground truth (:class:`~dt_highway.camera.truth.CameraTruth`: each
+vehicle's visible box and visibility), given to it beside the image, and adds the errors a
 one-stage detector makes, seeded and configurable: box jitter, misses of small or mostly
 hidden vehicles, **one merged box for vehicles that overlap strongly in the image** (the
 failure the paper names), and false positives. Its boxes carry no vehicle ids: nothing
-downstream can learn from it which box is which vehicle.
+downstream can learn from it which box is which vehicle. :func:`run_detector` runs either
+kind on a frame, giving the truth to the sensor model only.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from typing import Protocol
 
 import numpy as np
 
-from dt_highway.camera.render import CameraFrame
+from dt_highway.camera.render import CameraImage
+from dt_highway.camera.truth import CameraTruth
+from dt_highway.config import DetectorConfig, FrozenSettings, section_field
 
 VEHICLE = 0
 """Class id of vehicles"""
@@ -56,16 +60,16 @@ class Detections:
 
 
 class Detector(Protocol):
-    """Anything with ``detect(frame) -> Detections``."""
+    """Anything with ``detect(image) -> Detections``: a detector sees the image only."""
 
-    def detect(self, frame: CameraFrame) -> Detections:
-        """Find the vehicles in a frame."""
+    def detect(self, image: CameraImage) -> Detections:
+        """Find the vehicles in an image."""
         ...
 
 
-@dataclass(frozen=True)
-class SimulatedDetectorSettings:
-    """Error model of :class:`SimulatedDetector` (sizes in pixels of the frame at hand).
+class SimulatedDetectorSettings(FrozenSettings):
+    """Error model of :class:`SimulatedDetector` (sizes in pixels of the frame at hand); the
+    defaults and ranges are the ``detector`` section's (:class:`~dt_highway.config.DetectorConfig`).
 
     :param jitter: standard deviation of each box edge, as a fraction of the box's width
         (left/right edges) or height (top/bottom) [-]
@@ -77,35 +81,36 @@ class SimulatedDetectorSettings:
     :param false_positives_per_frame: mean number of spurious boxes per frame [-]
     """
 
-    jitter: float = 0.03
-    miss_height_px: float = 6.0
-    miss_visibility: float = 0.25
-    merge_overlap: float = 0.5
-    merge_prob: float = 0.5
-    false_positives_per_frame: float = 0.05
+    jitter: float = section_field(DetectorConfig, "jitter")
+    miss_height_px: float = section_field(DetectorConfig, "miss_height_px")
+    miss_visibility: float = section_field(DetectorConfig, "miss_visibility")
+    merge_overlap: float = section_field(DetectorConfig, "merge_overlap")
+    merge_prob: float = section_field(DetectorConfig, "merge_prob")
+    false_positives_per_frame: float = section_field(DetectorConfig, "false_positives_per_frame")
 
 
 class SimulatedDetector:
     """A detector made from the renderer's ground truth plus realistic, seeded errors.
 
-    :param settings: the error model
+    :param settings: the error model (None: the ``detector`` section's defaults)
     :param rng: its random generator (seed it for reproducible detections)
     """
 
-    def __init__(self, settings: SimulatedDetectorSettings = SimulatedDetectorSettings(),
+    def __init__(self, settings: SimulatedDetectorSettings | None = None,
                  rng: np.random.Generator | None = None) -> None:
-        self.settings = settings
+        self.settings = settings if settings is not None else SimulatedDetectorSettings()
         self.rng = rng if rng is not None else np.random.default_rng()
 
-    def detect(self, frame: CameraFrame) -> Detections:
-        """Boxes for the vehicles of ``frame`` (read from its ground truth), with errors.
+    def detect(self, image: CameraImage, truth: CameraTruth) -> Detections:
+        """Boxes for the vehicles of a frame (read from its ground truth), with errors.
 
-        :param frame: a rendered frame (its ``vehicles`` ground truth is used)
+        :param image: the rendered image (its size)
+        :param truth: the frame's ground truth (its ``vehicles`` are used)
         :return: the detections (no vehicle ids)
         """
         s, rng = self.settings, self.rng
-        seen = [t for t in frame.vehicles.values() if t.visible_box is not None]
-        h_img, w_img = frame.rgb.shape[:2]
+        seen = [t for t in truth.vehicles.values() if t.visible_box is not None]
+        h_img, w_img = image.rgb.shape[:2]
         boxes = np.array([t.visible_box for t in seen], dtype=float).reshape(-1, 4)
         vis = np.array([t.visibility for t in seen], dtype=float)
         # misses: logistic in the visible height and in the visibility
@@ -169,6 +174,19 @@ class SimulatedDetector:
             ok = (out[:, 2] - out[:, 0] >= 1.0) & (out[:, 3] - out[:, 1] >= 1.0)
             out, scores = out[ok], scores[ok]
         return Detections(out, scores, np.full(len(out), VEHICLE, dtype=np.int64))
+
+
+def run_detector(detector: Detector | SimulatedDetector, image: CameraImage, truth: CameraTruth) -> Detections:
+    """One frame's detections: the :class:`SimulatedDetector` (a sensor model) reads the
+    frame's ground truth, any other detector gets the image only.
+
+    :param detector: the detector
+    :param image: the camera image
+    :param truth: the frame's ground truth (given to the sensor model only)
+    """
+    if isinstance(detector, SimulatedDetector):
+        return detector.detect(image, truth)
+    return detector.detect(image)
 
 
 def iou(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:

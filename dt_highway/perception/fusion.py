@@ -23,15 +23,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from operator import attrgetter
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
+from pydantic import field_validator
 
 from dt_highway._jit import kernel
 from dt_highway.camera.pinhole import PinholeCamera
-from dt_highway.camera.render import CameraFrame
+from dt_highway.camera.render import CameraImage
+from dt_highway.config import FUSION_METHODS, FrozenSettings, FusionConfig, FusionMethod, section_field
 from dt_highway.perception.depth import box_distances
 from dt_highway.perception.detect import Detections
 from dt_highway.perception.matching import JointCost, match_each, match_joint
@@ -70,13 +71,13 @@ def _positions(state: np.ndarray, now_s: float) -> tuple[np.ndarray, np.ndarray]
     return x, y
 
 
-Method = Literal["baseline", "fusion", "joint", "tracked"]
-METHODS: tuple[str, ...] = ("baseline", "fusion", "joint", "tracked")
+Method = FusionMethod
+METHODS: tuple[str, ...] = FUSION_METHODS
 
 
-@dataclass(frozen=True)
-class FusionSettings:
-    """Settings of :class:`Fusion`.
+class FusionSettings(FrozenSettings):
+    """Settings of :class:`Fusion`; those a user sets take their defaults and ranges from the
+    ``fusion`` section (:class:`~dt_highway.config.FusionConfig`), the others are the model's.
 
     :param method: ``baseline``, ``fusion`` (the paper), ``joint`` or ``tracked``
     :param th: Algorithm 1's box resize threshold [-]
@@ -97,13 +98,13 @@ class FusionSettings:
     :param joint: the joint assignment's cost weights
     """
 
-    method: Method = "tracked"
-    th: float = 0.2
-    n_samples: int = 20
-    fallback: Literal["none", "nearest"] = "none"
-    anchor_height_m: float = 0.75
-    near_face_m: float = 2.5
-    continuity_bonus: float = 0.5
+    method: Method = section_field(FusionConfig, "method")
+    th: float = section_field(FusionConfig, "th")
+    n_samples: int = section_field(FusionConfig, "n_samples")
+    fallback: Literal["none", "nearest"] = section_field(FusionConfig, "fallback")
+    anchor_height_m: float = section_field(FusionConfig, "anchor_height_m")
+    near_face_m: float = section_field(FusionConfig, "near_face_m")
+    continuity_bonus: float = section_field(FusionConfig, "continuity_bonus")
     coast_penalty: float = 0.3
     position_sigma_m: float = 1.0
     assumed_length_m: float = 5.0
@@ -111,9 +112,12 @@ class FusionSettings:
     assumed_height_m: float = 1.5
     joint: JointCost = JointCost()
 
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)} (got {self.method!r})")
+    @field_validator("method", mode="before")
+    @classmethod
+    def _known_method(cls, method: Any) -> Any:
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)} (got {method!r})")
+        return method
 
 
 class Placement(NamedTuple):
@@ -142,14 +146,14 @@ class Fusion:
     """Places the twin's connected vehicles on the camera's boxes, frame after frame.
 
     :param camera: the ego's camera model (the renderer's ``camera``)
-    :param settings: method and parameters
+    :param settings: method and parameters (None: the ``fusion`` section's defaults)
     :param rng: random generator of Algorithm 1's sampling
     """
 
-    def __init__(self, camera: PinholeCamera, settings: FusionSettings = FusionSettings(),
+    def __init__(self, camera: PinholeCamera, settings: FusionSettings | None = None,
                  rng: np.random.Generator | None = None) -> None:
         self.camera = camera
-        self.settings = settings
+        self.settings = settings if settings is not None else FusionSettings()
         self.rng = rng if rng is not None else np.random.default_rng()
         self.tracker = BoxTracker()
         self._track_of: dict[int, int] = {}
@@ -159,11 +163,11 @@ class Fusion:
         self.tracker.reset()
         self._track_of = {}
 
-    def anchors(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float,
+    def anchors(self, frame: CameraImage, twin: Sequence[TwinVehicleView], now_s: float,
                 compensate: bool) -> tuple[np.ndarray, np.ndarray]:
         """Anchor pixels and GNSS planar depths of twin vehicles (coordinate transform, III-A).
 
-        :param frame: the camera frame (its pose is the ego's)
+        :param frame: the camera image (its pose is the ego's)
         :param twin: the twin's vehicles as received
         :param now_s: the frame's time on the twin's clock [s]
         :param compensate: move each position forward by its age at its speed and heading
@@ -171,7 +175,7 @@ class Fusion:
         """
         return self._anchors(_twin_state(twin), frame, now_s, compensate)
 
-    def expected_boxes(self, frame: CameraFrame, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
+    def expected_boxes(self, frame: CameraImage, twin: Sequence[TwinVehicleView], now_s: float) -> np.ndarray:
         """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
         its compensated position and heading) projected and clipped to the image.
 
@@ -179,7 +183,7 @@ class Fusion:
         """
         return self._expected_boxes(_twin_state(twin), frame, now_s)
 
-    def _anchors(self, state: np.ndarray, frame: CameraFrame, now_s: float,
+    def _anchors(self, state: np.ndarray, frame: CameraImage, now_s: float,
                  compensate: bool) -> tuple[np.ndarray, np.ndarray]:
         if not len(state):
             return np.zeros((0, 2)), np.zeros(0)
@@ -190,7 +194,7 @@ class Fusion:
         z[~np.isfinite(uv[:, 0])] = np.nan
         return uv, z
 
-    def _expected_boxes(self, state: np.ndarray, frame: CameraFrame, now_s: float) -> np.ndarray:
+    def _expected_boxes(self, state: np.ndarray, frame: CameraImage, now_s: float) -> np.ndarray:
         s, k = self.settings, self.camera.intrinsics
         if not len(state):
             return np.zeros((0, 4))
@@ -221,11 +225,11 @@ class Fusion:
         box[empty] = np.nan
         return box
 
-    def step(self, frame: CameraFrame, detections: Detections, twin: Sequence[TwinVehicleView],
+    def step(self, frame: CameraImage, detections: Detections, twin: Sequence[TwinVehicleView],
              now_s: float) -> dict[int, Placement]:
         """Place every connected vehicle of the twin view on a box of this frame.
 
-        :param frame: the camera frame (RGB, depth, pose)
+        :param frame: the camera image (RGB, depth, pose; never its ground truth)
         :param detections: the detector's boxes for this frame
         :param twin: the twin's vehicles as received by the ego (may be empty)
         :param now_s: the frame's time on the twin's clock [s] (for latency compensation)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -193,7 +193,7 @@ def match_each(
             raise ValueError(f"one distance per box is needed (got {len(d)} distances for {len(b)} boxes)")
         g = np.asarray(gnss_distances_m, dtype=float).reshape(-1)
         diff = np.abs(d[None, :] - g[:, None])  # Alg. 2 lines 10-14, with |.|
-        by_depth = np.isfinite(np.where(inside, diff, np.nan)).any(axis=1)
+        by_depth = cast(np.ndarray, np.isfinite(np.where(inside, diff, np.nan)).any(axis=1))
         key = np.where(by_depth[:, None], np.where(np.isfinite(diff), diff, np.inf), centre_key)
     chosen = np.argmin(np.where(inside, key, np.inf), axis=1)
     for i in np.flatnonzero(count == 1):
@@ -267,13 +267,14 @@ def match_joint(
     out: list[int | None] = [None] * len(a)
     if not len(a) or not len(b):
         return out
-    sigma = np.zeros(len(a)) if anchor_sigma_px is None else np.ascontiguousarray(anchor_sigma_px, dtype=float).reshape(-1)
+    sigma = (np.zeros(len(a)) if anchor_sigma_px is None
+             else np.ascontiguousarray(anchor_sigma_px, dtype=float).reshape(-1))
     e = _NONE_2D if expected_boxes is None else np.ascontiguousarray(expected_boxes, dtype=float).reshape(len(a), 4)
     extra = _NONE_2D if extra_cost is None else np.ascontiguousarray(extra_cost, dtype=float).reshape(len(a), len(b))
     total, allowed = _joint_cost(a, g, b, d, sigma, e, extra, float(cost.depth_scale_m), float(cost.outside_penalty),
                                  float(cost.min_fit), float(cost.gate))
     rows, cols = linear_sum_assignment(total)
-    for r, c in zip(rows.tolist(), cols.tolist()):
+    for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
         if allowed[r, c]:
             out[r] = c
     return out
@@ -296,7 +297,8 @@ def _joint_cost(a: np.ndarray, g: np.ndarray, b: np.ndarray, d: np.ndarray, sigm
     allowed = np.empty((k_n, n_b), dtype=np.bool_)
     for i in range(k_n):
         s = sigma[i] if np.isfinite(sigma[i]) else 0.0
-        has = e.shape[0] > 0 and np.isfinite(e[i, 0]) and np.isfinite(e[i, 1]) and np.isfinite(e[i, 2]) and np.isfinite(e[i, 3])
+        has = (e.shape[0] > 0 and np.isfinite(e[i, 0]) and np.isfinite(e[i, 1]) and np.isfinite(e[i, 2])
+               and np.isfinite(e[i, 3]))
         area_e = (e[i, 2] - e[i, 0]) * (e[i, 3] - e[i, 1]) if has else 0.0
         for j in range(n_b):
             ok = True

@@ -18,24 +18,37 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import gymnasium as gym
 import numpy as np
+import stable_baselines3 as sb3
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import (
     BaseCallback,
     CallbackList,
     CheckpointCallback,
 )
+from stable_baselines3.common.logger import Logger, make_output_format
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
+from tqdm.auto import tqdm
 
 from dt_highway.config import ConfigError
 from dt_highway.rl.config import TrainConfig
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
 
+if TYPE_CHECKING:
+    from dt_highway.env import DTHighwayEnv
+
 ENV_ID = "dt_highway:dt-highway-v0"
 VISION_DQN_BUFFER = 20_000
 """DQN's replay buffer with image observations unless ``buffer_size`` is given [transitions] (~1.5 GB)"""
+
+
 class Reseed(gym.Wrapper):
     """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
     (vectorised envs pass a seed to the first reset only)."""
@@ -51,10 +64,10 @@ class Reseed(gym.Wrapper):
         return self.env.reset(seed=seed, options=options)
 
 
-def _make_env(env_config: dict[str, Any], first_seed: int, stride: int):  # noqa: ANN202 - a factory for the vec env
-    def build() -> Any:
-        from stable_baselines3.common.monitor import Monitor
+def _make_env(env_config: dict[str, Any], first_seed: int, stride: int) -> Callable[[], gym.Env]:
+    """A factory of one of the vec env's envs (what ``SubprocVecEnv`` sends to its worker)."""
 
+    def build() -> gym.Env:
         return Monitor(Reseed(gym.make(ENV_ID, config=env_config), first_seed, stride))
 
     return build
@@ -64,13 +77,11 @@ def _policy_name(cfg: TrainConfig) -> str:
     return "MultiInputPolicy" if cfg.observation == "vision" else "MlpPolicy"
 
 
-def build_model(cfg: TrainConfig, env: Any) -> Any:
+def build_model(cfg: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     """The stable-baselines3 model of a training configuration.
 
     :raises ConfigError: on hyperparameters the algorithm does not take
     """
-    import stable_baselines3 as sb3
-
     algo = getattr(sb3, cfg.algorithm)
     kwargs = dict(cfg.hyperparameters)
     if cfg.algorithm == "DQN" and cfg.observation == "vision":
@@ -124,7 +135,7 @@ class HeldOutEval(BaseCallback):
                     break
             returns.append(total)
             lengths.append(n)
-            crashes += int(self.env.unwrapped.vehicle.crashed)
+            crashes += int(cast("DTHighwayEnv", self.env.unwrapped).vehicle.crashed)
         summary = {"timesteps": int(self.num_timesteps), "mean_return": float(np.mean(returns)),
                    "mean_length": float(np.mean(lengths)), "collision_rate": crashes / self.episodes}
         self.results.append(summary)
@@ -144,8 +155,6 @@ class _Progress(BaseCallback):
         self.total = total
 
     def _on_training_start(self) -> None:
-        from tqdm.auto import tqdm
-
         self.bar = tqdm(total=self.total, unit="step", desc="training", dynamic_ncols=True)
 
     def _on_step(self) -> bool:
@@ -159,7 +168,7 @@ class _Progress(BaseCallback):
         self.bar.close()
 
 
-def _close(venv: Any) -> None:
+def _close(venv: VecEnv) -> None:
     """Close a vec env whose workers may already be gone (Ctrl-C reaches them too)."""
     try:
         venv.close()
@@ -180,17 +189,16 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     :return: the metadata written beside the model (``interrupted`` if stopped by Ctrl-C)
     :raises ConfigError: on a bad configuration, output path or missing TensorBoard
     """
-    from stable_baselines3.common.logger import Logger, make_output_format
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-
     out = Path(out)
     if out.suffix != ".zip":
         raise ConfigError(f"--out must name a .zip file (got {out})")
     if tensorboard_dir is not None:
         try:
-            import tensorboard  # noqa: F401
+            import tensorboard  # lazy: optional extra (pip install dt-highway[tensorboard]) # noqa: F401
         except ImportError:
-            raise ConfigError("--tensorboard needs the tensorboard package: pip install 'dt-highway[tensorboard]'") from None
+            raise ConfigError(
+                "--tensorboard needs the tensorboard package: pip install 'dt-highway[tensorboard]'"
+            ) from None
     updates = {k: int(v) for k, v in (("timesteps", timesteps), ("n_envs", n_envs)) if v is not None}
     if updates:
         cfg = TrainConfig.model_validate({**cfg.model_dump(), **updates})
@@ -202,8 +210,6 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     except ValueError as err:
         raise ConfigError(str(err)) from None
     if cfg.observation != "vision":
-        import torch
-
         torch.set_num_threads(1)  # a small MLP: one thread is fastest, and leaves the other cores to the envs
     work = out.with_suffix(".d")
     if work.exists():

@@ -178,7 +178,8 @@ class Downlink:
         """
         cfg = self.config
         if now_s >= self._next_send_s:
-            self._next_send_s = (now_s if not math.isfinite(self._next_send_s) else self._next_send_s) + 1.0 / cfg.rate_hz
+            last = now_s if not math.isfinite(self._next_send_s) else self._next_send_s
+            self._next_send_s = last + 1.0 / cfg.rate_hz
             lost = self.rng.random() < cfg.loss_prob
             latency = max(0.0, cfg.latency_mean_s + cfg.latency_jitter_s * float(self.rng.normal()))
             if not lost:

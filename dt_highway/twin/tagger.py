@@ -29,10 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dt_highway.config import TaggerConfig
+from dt_highway.labels import AGGRESSIVE, NORMAL
 from dt_highway.twin.store import FixStore
-
-AGGRESSIVE = "aggressive"
-NORMAL = "normal"
 
 
 @dataclass(frozen=True)

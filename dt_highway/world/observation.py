@@ -11,10 +11,14 @@ them over whole episodes).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
+
+if TYPE_CHECKING:
+    from highway_env.envs.common.abstract import AbstractEnv
+    from highway_env.vehicle.objects import RoadObject
 
 
 class FastKinematicObservation(KinematicObservation):
@@ -23,12 +27,12 @@ class FastKinematicObservation(KinematicObservation):
     :raises ValueError: if a feature is named twice (pandas would give the column twice)
     """
 
-    def __init__(self, env: Any, **kwargs: Any) -> None:
+    def __init__(self, env: AbstractEnv, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if len(set(self.features)) != len(self.features):
             raise ValueError(f"observation features must be distinct names (got {self.features})")
 
-    def observed(self) -> list[Any]:
+    def observed(self) -> list[RoadObject]:
         """The observer and the objects of the observation's rows, in row order (highway-env's
         ``close_objects_to`` with this observation's options)."""
         ego = self.observer_vehicle

@@ -29,13 +29,25 @@ from __future__ import annotations
 
 import bisect
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from highway_env.road.lane import StraightLane
+from highway_env.road.lane import AbstractLane, StraightLane
 from highway_env.road.road import LaneIndex, Road, RoadNetwork
 from highway_env.vehicle.objects import Landmark
 
 from dt_highway.world.vehicle import longitudinal, surely_apart
+
+if TYPE_CHECKING:
+    from highway_env.vehicle.kinematics import Vehicle
+    from highway_env.vehicle.objects import RoadObject
+
+_LaneRow = tuple[LaneIndex, float, float, float, float, float, float, float, float]
+"""A straight lane's index, start x, y, direction x, y, lateral direction x, y, length [m] and heading [rad]"""
+_LaneOrder = tuple[list[float], list[int]]
+"""Items on a lane: their longitudinal positions [m], sorted, and their indexes"""
+_SearchIndex = tuple[list["RoadObject"], np.ndarray, dict[int, int], dict[LaneIndex, _LaneOrder]]
+"""Searchable objects, their positions ``(N, 2)`` [m], index by ``id``, per-lane orders"""
 
 BROAD_PHASE_MARGIN_M = 1e-6
 """Extra distance the collision broad phase keeps pairs for [m]: our distances may differ from
@@ -67,7 +79,7 @@ class FastRoadNetwork(RoadNetwork):
     with other lanes use highway-env's loop. Lanes must be added with ``add_lane``.
     """
 
-    _lanes: list[tuple] | None = None
+    _lanes: list[_LaneRow] | None = None
 
     @classmethod
     def of(cls, network: RoadNetwork) -> FastRoadNetwork:
@@ -76,22 +88,24 @@ class FastRoadNetwork(RoadNetwork):
         fast.graph = network.graph
         return fast
 
-    def add_lane(self, _from: str, _to: str, lane) -> None:  # noqa: ANN001 - highway-env's signature
+    def add_lane(self, _from: str, _to: str, lane: AbstractLane) -> None:
         """Add a lane (highway-env's), and forget the lane table."""
         super().add_lane(_from, _to, lane)
         self._lanes = None
 
-    def _lane_table(self) -> list[tuple]:
-        rows = []
+    def _lane_table(self) -> list[_LaneRow]:
+        rows: list[_LaneRow] = []
         for _from, to_dict in self.graph.items():
             for _to, lanes in to_dict.items():
                 for _id, lane in enumerate(lanes):
-                    axis_aligned = all(float(c) in (-1.0, 0.0, 1.0) for c in (*lane.direction, *lane.direction_lateral)) \
+                    axis_aligned = (
+                        all(float(c) in (-1.0, 0.0, 1.0) for c in (*lane.direction, *lane.direction_lateral))
                         if type(lane) is StraightLane else False
+                    )
                     if not axis_aligned:
                         return []
-                    rows.append(((_from, _to, _id), float(lane.start[0]), float(lane.start[1]), float(lane.direction[0]),
-                                 float(lane.direction[1]), float(lane.direction_lateral[0]),
+                    rows.append(((_from, _to, _id), float(lane.start[0]), float(lane.start[1]),
+                                 float(lane.direction[0]), float(lane.direction[1]), float(lane.direction_lateral[0]),
                                  float(lane.direction_lateral[1]), float(lane.length), float(lane.heading)))
         return rows
 
@@ -123,9 +137,12 @@ class FastRoad(Road):
     """highway-env's road with vectorised neighbour search and a collision broad phase."""
 
     _in_act = False
-    _index: tuple[list, np.ndarray, dict[int, int]] | None = None
+    _index: _SearchIndex | None = None
+    network: RoadNetwork
 
-    def __init__(self, *args, **kwargs) -> None:  # noqa: ANN002, ANN003 - highway-env's signature
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        """highway-env's ``Road(network, vehicles, road_objects, np_random, record_history)``; a plain
+        :class:`RoadNetwork` is given the fast lane lookup (:class:`FastRoadNetwork`)."""
         super().__init__(*args, **kwargs)
         if type(self.network) is RoadNetwork:
             self.network = FastRoadNetwork.of(self.network)
@@ -140,31 +157,37 @@ class FastRoad(Road):
         finally:
             self._in_act, self._index = False, None
 
-    def _searchables(self) -> tuple[list, np.ndarray, dict[int, int], dict]:
+    def _searchables(self) -> _SearchIndex:
         """The vehicles and objects searches consider, their positions ``(N, 2)`` [m], index by
         ``id``, and the per-lane sorted indexes (filled lazily by :meth:`_lane_order`)."""
         if self._index is not None:
             return self._index
         items = [v for v in self.vehicles + self.objects if _searchable(type(v))]
         pos = np.array([v.position for v in items], dtype=float).reshape(-1, 2)
-        index = (items, pos, {id(v): i for i, v in enumerate(items)}, {})
+        index: _SearchIndex = (items, pos, {id(v): i for i, v in enumerate(items)}, {})
         if self._in_act:
             self._index = index
         return index
 
     @staticmethod
-    def _lane_order(lane: StraightLane, pos: np.ndarray) -> tuple[list[float], list[int]]:
+    def _lane_order(lane: StraightLane, pos: np.ndarray) -> _LaneOrder:
         """The items on a lane (highway-env's ``on_lane`` with a 1 m margin), sorted by
         longitudinal position, ties by their order in ``vehicles + objects``."""
         d = pos - lane.start
         long = d[:, 0] * lane.direction[0] + d[:, 1] * lane.direction[1]
         lat = d[:, 0] * lane.direction_lateral[0] + d[:, 1] * lane.direction_lateral[1]
-        on = (np.abs(lat) <= lane.width / 2 + 1) & (-lane.VEHICLE_LENGTH <= long) & (long < lane.length + lane.VEHICLE_LENGTH)
+        on = (
+            (np.abs(lat) <= lane.width / 2 + 1)
+            & (-lane.VEHICLE_LENGTH <= long)
+            & (long < lane.length + lane.VEHICLE_LENGTH)
+        )
         idx = np.flatnonzero(on)
         order = idx[np.lexsort((idx, long[idx]))]
         return long[order].tolist(), order.tolist()
 
-    def neighbour_vehicles(self, vehicle, lane_index=None):  # noqa: ANN001, ANN201 - highway-env's signature
+    def neighbour_vehicles(
+        self, vehicle: Vehicle, lane_index: LaneIndex | None = None
+    ) -> tuple[RoadObject | None, RoadObject | None]:
         """The preceding and following vehicles of ``vehicle`` on a lane, as highway-env finds them.
 
         A per-lane index sorted by longitudinal position answers it by bisection: the
@@ -216,7 +239,7 @@ class FastRoad(Road):
         return v_front, v_rear
 
     @staticmethod
-    def close_pairs(items: list, dt: float) -> np.ndarray:
+    def close_pairs(items: list[RoadObject], dt: float) -> np.ndarray:
         """Which pairs may touch in a step: ``(N, N)`` bool, row = the vehicle that checks.
 
         highway-env's own early exit (``RoadObject._is_colliding``), for all pairs at once:
@@ -241,7 +264,7 @@ class FastRoad(Road):
         # highway-env's order: each vehicle with the vehicles after it, then with the objects
         # (row-major order of the pairs i < j)
         rows, cols = close.nonzero()
-        for i, j in zip(rows.tolist(), cols.tolist()):
+        for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
             vehicle, other = items[i], items[j]
             if not surely_apart(vehicle, other, dt, BROAD_PHASE_MARGIN_M):
                 vehicle.handle_collisions(other, dt)

@@ -18,19 +18,19 @@ across the episodes of one env): the ego is 0, NPCs are drivers ``1..population_
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any
 
 import numpy as np
 from highway_env import utils
-from highway_env.road.road import Road
+from highway_env.road.road import LaneIndex, Road
 from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.config import DriverParams, TrafficConfig
+from dt_highway.labels import AGGRESSIVE, NORMAL
 from dt_highway.world.vehicle import FastIDMVehicle, clip, local_coordinates, wrap_to_pi
 
-NORMAL = "normal"
-AGGRESSIVE = "aggressive"
 DRIVER_TYPES = (NORMAL, AGGRESSIVE)
 EGO_ID = 0
 
@@ -105,7 +105,8 @@ class TypedDriverVehicle(FastIDMVehicle):
 
     MAX_LATERAL_SPEED_MPS = 1.0
 
-    def __init__(self, road: Road, position, heading: float = 0, speed: float = 0, **kwargs) -> None:
+    def __init__(self, road: Road, position: Sequence[float] | np.ndarray, heading: float = 0, speed: float = 0,
+                 **kwargs: Any) -> None:
         super().__init__(road, position, heading, speed, **kwargs)
         self.dt_id = -1
         self.dt_driver_type = NORMAL
@@ -128,7 +129,7 @@ class TypedDriverVehicle(FastIDMVehicle):
     def randomize_behavior(self) -> None:
         """Keep the driver type's gains (highway-env's version would only redraw DELTA)."""
 
-    def steering_control(self, target_lane_index) -> float:
+    def steering_control(self, target_lane_index: LaneIndex) -> float:
         lane = self.road.network.get_lane(target_lane_index)
         x, y = self.position.tolist()
         s, offset = local_coordinates(lane, x, y)
@@ -256,7 +257,8 @@ class CutInPolicy:
         best, best_gap = None, -1.0
         for lane_index in me.road.network.side_lanes(me.lane_index):
             front, rear = me.road.neighbour_vehicles(me, lane_index)
-            if rear is not None and me.acceleration(ego_vehicle=rear, front_vehicle=me) < -me.LANE_CHANGE_MAX_BRAKING_IMPOSED:
+            braking = -me.LANE_CHANGE_MAX_BRAKING_IMPOSED
+            if rear is not None and me.acceleration(ego_vehicle=rear, front_vehicle=me) < braking:
                 continue
             gap = me.lane_distance_to(front) if front is not None else math.inf
             if gap > max(self.gap_m[0] + me.LENGTH, best_gap):
@@ -331,7 +333,9 @@ class TrafficManager:
         self._owed_behind = 0
 
     # ------------------------------------------------------------------ creation
-    def make_vehicle(self, road: Road, driver: Driver, lane_index, x_m: float, speed_mps: float) -> TypedDriverVehicle:
+    def make_vehicle(
+        self, road: Road, driver: Driver, lane_index: LaneIndex, x_m: float, speed_mps: float
+    ) -> TypedDriverVehicle:
         """Create one NPC of ``driver`` on ``lane_index`` at longitudinal position ``x_m``."""
         lane = road.network.get_lane(lane_index)
         v = TypedDriverVehicle(
@@ -390,12 +394,12 @@ class TrafficManager:
         lane_indices = [road.network.get_closest_lane_index(lane.position(0, 0)) for lane in lanes]
         free = self._free_drivers(road)
         count = min(count, len(free))
-        chosen = self.rng.choice(free, size=count, replace=False) if count else []
-        per_lane = utils.near_split(count, num_bins=len(lanes)) if count else []
+        chosen: np.ndarray | list[int] = self.rng.choice(free, size=count, replace=False) if count else []
+        per_lane: list[int] = utils.near_split(count, num_bins=len(lanes)) if count else []
         x0 = ego.position[0] - self.config.spawn_behind_m
         span = self.config.spawn_behind_m + self.config.spawn_ahead_m
         k = 0
-        for lane_index, n in zip(lane_indices, per_lane):
+        for lane_index, n in zip(lane_indices, per_lane, strict=False):  # no NPCs: no bins
             if n == 0:
                 continue
             slot = span / n

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from highway_env.road.lane import AbstractLane, StraightLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
@@ -84,7 +85,7 @@ def longitudinal(lane: AbstractLane, x: float, y: float) -> float:
 _STOCK: dict[type, tuple[bool, bool, bool, bool, bool]] = {}
 
 
-def _stock(cls: type) -> tuple[bool, bool, bool, bool, bool]:
+def _stock(cls: type[RoadObject]) -> tuple[bool, bool, bool, bool, bool]:
     """Per class, once: (is a highway-env ``Vehicle``; its ``velocity``/``direction`` are
     highway-env's; its ``lane_distance_to`` is highway-env's; its ``polygon`` is highway-env's;
     its collision check, ``handle_collisions`` and ``_is_colliding``, is highway-env's)."""
@@ -94,7 +95,8 @@ def _stock(cls: type) -> tuple[bool, bool, bool, bool, bool]:
         flags = _STOCK[cls] = (
             issubclass(cls, Vehicle),
             kinematic,
-            cls.lane_distance_to is RoadObject.lane_distance_to or cls.lane_distance_to is FastIDMVehicle.lane_distance_to,
+            cls.lane_distance_to is RoadObject.lane_distance_to
+            or cls.lane_distance_to is FastIDMVehicle.lane_distance_to,
             cls.polygon is RoadObject.polygon,
             cls.handle_collisions is RoadObject.handle_collisions and cls._is_colliding is RoadObject._is_colliding,
         )
@@ -170,6 +172,12 @@ class FastIDMVehicle(IDMVehicle):
     arithmetic is done on Python floats (see the module docstring for how close it is).
     Random draws at creation (``create_random``, ``randomize_behavior``) are highway-env's.
     """
+
+    # highway-env's state, set in its constructor (declared for the type checker)
+    speed: float
+    heading: float
+    crashed: bool
+    impact: np.ndarray | None
 
     def act(self, action: dict | str | None = None) -> None:
         """Decide steering [rad] and acceleration [m/s2] (MOBIL for the lane, IDM for the speed)."""

@@ -35,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
-from dt_highway.camera.render import CameraFrame, CameraRenderer, RenderSettings
+from dt_highway.camera.render import CameraImage, CameraRenderer, RenderSettings
 from dt_highway.camera.scene import LaneLine, RoadScene, VehicleSet
+from dt_highway.camera.truth import CameraTruth
 
 MIN_HEIGHT_FRAC = 25.0 / 375.0
 """Least visible box height of a scored vehicle, as a fraction of the image height [-] (KITTI moderate)"""
@@ -76,26 +77,28 @@ class LabelledFrame:
     :param depth_m: ``float32 (H, W)`` planar depth [m]
     :param boxes: ``(N, 4)`` visible boxes ``x1, y1, x2, y2`` [px]
     :param scored: ``(N,)`` whether each box counts in evaluation (else: ignored)
-    :param frame: the renderer's frame (ground truth, for evaluation tools)
+    :param image: the renderer's image (what a detector is given)
+    :param truth: the renderer's ground truth (the labels' source, for evaluation tools)
     """
 
     rgb: np.ndarray
     depth_m: np.ndarray
     boxes: np.ndarray
     scored: np.ndarray
-    frame: CameraFrame
+    image: CameraImage
+    truth: CameraTruth
 
 
-def scored(frame: CameraFrame) -> tuple[np.ndarray, np.ndarray]:
+def scored(truth: CameraTruth) -> tuple[np.ndarray, np.ndarray]:
     """The labelled boxes of a rendered frame and which of them evaluation scores.
 
-    :param frame: a rendered frame (its ground truth is read)
+    :param truth: a rendered frame's ground truth
     :return: ``(boxes (N, 4), scored (N,) bool)``
     """
-    h = frame.rgb.shape[0]
+    h = truth.instance.shape[0]
     rows = [
         (t.visible_box, t.visibility)
-        for t in frame.vehicles.values()
+        for t in truth.vehicles.values()
         if t.visible_box is not None and t.visible_px >= MIN_LABEL_PX
     ]
     if not rows:
@@ -119,11 +122,15 @@ def _traffic(rng: np.random.Generator, centres: np.ndarray, ego: Pose, max_vehic
     lane_w = float(centres[1] - centres[0])
     n_target = int(rng.integers(0, max_vehicles + 1))
     platoon = rng.random() < 0.5
-    xs, ys, hs, ls, ws = [], [], [], [], []
+    xs: list[float] = []  # centres [m]
+    ys: list[float] = []
+    hs: list[float] = []  # headings [rad]
+    ls: list[float] = []  # lengths [m]
+    ws: list[float] = []  # widths [m]
 
     def free(x: float, y: float, length: float, width: float) -> bool:
         # footprints must not overlap (the renderer's painting order needs disjoint cars)
-        for x2, y2, l2, w2 in zip(xs, ys, ls, ws):
+        for x2, y2, l2, w2 in zip(xs, ys, ls, ws, strict=True):
             if abs(x - x2) < (length + l2) / 2 + 0.5 and abs(y - y2) < (width + w2) / 2 + 0.4:
                 return False
         return abs(x - ego.x_m) > (length + 5.0) / 2 + 0.5 or abs(y - ego.y_m) > (width + 2.0) / 2 + 0.4
@@ -186,6 +193,6 @@ def make_frame(seed: int, settings: SceneSettings = SceneSettings()) -> Labelled
     lane = int(rng.integers(len(centres)))
     ego = Pose(float(rng.uniform(-1e3, 1e3)), float(centres[lane] + rng.normal(0.0, 0.3)), float(rng.normal(0.0, 0.02)))
     vehicles = _traffic(rng, centres, ego, settings.max_vehicles)
-    frame = renderer.render(ego, vehicles)
-    boxes, keep = scored(frame)
-    return LabelledFrame(frame.rgb, frame.depth_m, boxes, keep, frame)
+    image, truth = renderer.render(ego, vehicles)
+    boxes, keep = scored(truth)
+    return LabelledFrame(image.rgb, image.depth_m, boxes, keep, image, truth)

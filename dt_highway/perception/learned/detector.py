@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import torch
 
-from dt_highway.camera.render import CameraFrame
+from dt_highway.camera.render import CameraImage
 from dt_highway.perception.detect import VEHICLE, Detections
 from dt_highway.perception.learned.model import inverse_depth, peaks, to_input
 from dt_highway.perception.learned.weights import load_weights
@@ -24,8 +24,8 @@ class LearnedDetector:
     it (``cv2.INTER_AREA``) and the boxes scaled back: the cost of a frame stays that of the
     network's size, but vehicles shrink with the frame. With ``scale="native"`` the (fully
     convolutional) network reads the frame as it is: a 640 x 360 frame costs four times a
-    320 x 180 one, and far vehicles keep their pixels. It reads ``frame.rgb`` (and
-    ``frame.depth_m`` for a depth model) only.
+    320 x 180 one, and far vehicles keep their pixels. It reads ``image.rgb`` (and
+    ``image.depth_m`` for a depth model) only.
 
     :param weights: a weights file (``None``: the shipped weights)
     :param min_score: least score of a reported detection, in (0, 1] [-]
@@ -48,13 +48,13 @@ class LearnedDetector:
         if threads is not None:
             torch.set_num_threads(threads)
 
-    def detect(self, frame: CameraFrame) -> Detections:
-        """Vehicles in one frame.
+    def detect(self, image: CameraImage) -> Detections:
+        """Vehicles in one image.
 
-        :param frame: a camera frame
-        :return: boxes ``x1, y1, x2, y2`` [px] in the frame's pixels, scores, classes (0)
+        :param image: a camera image
+        :return: boxes ``x1, y1, x2, y2`` [px] in the image's pixels, scores, classes (0)
         """
-        return self.detect_batch([frame.rgb], [frame.depth_m] if self.arch.depth else None)[0]
+        return self.detect_batch([image.rgb], [image.depth_m] if self.arch.depth else None)[0]
 
     def detect_batch(self, rgbs: list[np.ndarray] | np.ndarray, depths: list[np.ndarray] | None = None,
                      min_score: float | None = None) -> list[Detections]:

@@ -108,7 +108,9 @@ class PointDetector(nn.Module):
         self.heat = nn.Conv2d(f, 1, 1)
         self.box = nn.Conv2d(f, 4, 1)
         # CenterNet's prior: start with heatmap probabilities of about 0.01
-        nn.init.constant_(self.heat.bias, -math.log((1 - 0.01) / 0.01))
+        bias = self.heat.bias
+        assert bias is not None  # nn.Conv2d's default bias=True
+        nn.init.constant_(bias, -math.log((1 - 0.01) / 0.01))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """:param x: ``(B, C, H, W)`` normalised input (see :func:`to_input`), H and W multiples of 32."""

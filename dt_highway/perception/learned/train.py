@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -179,7 +180,7 @@ def train(
     settings: TrainSettings = TrainSettings(),
     resume: bool = True,
     progress: Callable[[int, float, dict[str, float]], None] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Train a detector and write its weights to ``out``.
 
     :param out: the weights file to write; its checkpoint is ``<out>.ckpt``
@@ -192,47 +193,23 @@ def train(
     """
     out = Path(out)
     ckpt_path = out.with_name(out.name + ".ckpt")
-    if settings.batch < 2 or settings.batch % 2 or settings.batch // 2 > settings.replay:
-        raise ValueError(f"the batch (--batch) must be even, from 2 to {2 * settings.replay} (got {settings.batch})")
-    if not (32 <= arch.width_px <= 4096 and 32 <= arch.height_px <= 4096):
-        raise ValueError(f"the network's input (--width, --height) must be 32 to 4096 px per side "
-                         f"(got {arch.width_px}x{arch.height_px})")
-    if settings.minutes <= 0:
-        raise ValueError(f"minutes must be > 0 (got {settings.minutes})")
+    _check(arch, settings)
     torch.set_num_threads(settings.threads)
-    state = None
-    if resume and ckpt_path.exists():
-        try:
-            state = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-            saved = Architecture.from_dict(state["arch"])
-            counters = (int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"]), int(state["rendered"]))
-            model_state, opt_state, gen_state = state["model"], state["optimizer"], state["generator"]
-        except Exception as exc:  # a torn or foreign checkpoint: say so, do not guess
-            raise ValueError(f"cannot resume from {ckpt_path}: {type(exc).__name__}: {exc} "
-                             "(delete it or pass --fresh)") from None
-        if saved != arch:
-            raise ValueError(f"{ckpt_path} holds another network ({_describe(saved)}; asked: {_describe(arch)}): "
-                             "give the same options or pass --fresh")
+    state = _read_checkpoint(ckpt_path, arch) if resume and ckpt_path.exists() else None
     with torch.random.fork_rng():  # seeded initial weights, without touching the caller's torch RNG
         torch.manual_seed(settings.seed)
-        model = PointDetector(arch).to(memory_format=torch.channels_last)
+        model = PointDetector(arch)
+        model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stubs omit it
     opt = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
     step, elapsed, next_seed, rendered = 0, 0.0, TRAIN_SEED0, 0
     gen = torch.Generator().manual_seed(settings.seed)
-    pool: dict[str, torch.Tensor] = {}
     if state is not None:
-        try:
-            model.load_state_dict(model_state)
-            opt.load_state_dict(opt_state)
-            gen.set_state(gen_state)
-        except Exception as exc:
-            raise ValueError(f"cannot resume from {ckpt_path}: {str(exc).splitlines()[0]} (pass --fresh)") from None
-        step, elapsed, next_seed, rendered = counters
+        _restore(state, model, opt, gen, ckpt_path)
+        step, elapsed, next_seed, rendered = state.step, state.elapsed_s, state.next_seed, state.rendered
     half = settings.batch // 2
     loader = DataLoader(_Frames(arch, next_seed), batch_size=half, num_workers=1, persistent_workers=False,
                         prefetch_factor=4)
-    fields = ("rgb", "depth", "heat", "box", "weight")  # the pool keeps the second colouring
-    filled, cursor = 0, 0
+    pool = _ReplayPool(settings.replay)
     last_ckpt = time.perf_counter()
     losses: dict[str, float] = {}
     budget_s = settings.minutes * 60.0
@@ -244,35 +221,11 @@ def train(
             item = next(it)
             next_seed = int(item[6][-1]) + 1
             rendered += len(item[6])
-            batch = [item[0], *item[2:6]]
-            fresh = [item[1], *item[2:6]]
-            if filled >= half:
-                pick = torch.randint(0, filled, (half,), generator=gen)
-                batch = [torch.cat([b, pool[k][pick]]) for b, k in zip(batch, fields)]
-            # the replay pool keeps the newest `replay` frames
-            if not pool:
-                pool = {k: torch.empty((settings.replay, *b.shape[1:]), dtype=b.dtype) for k, b in zip(fields, fresh)}
-            for i in range(len(fresh[0])):
-                for k, b in zip(fields, fresh):
-                    pool[k][cursor] = b[i]
-                cursor = (cursor + 1) % settings.replay
-                filled = min(filled + 1, settings.replay)
-            rgb, depth, heat, box, weight = batch
-            inp = to_input(rgb, arch, depth if arch.depth else None)
-            lr = _lr(settings, step, elapsed)
-            for g in opt.param_groups:
-                g["lr"] = lr
-            heat_logits, dist = model(inp)
-            l_heat = focal_loss(heat_logits, heat)
-            l_box = giou_loss(decode_boxes(dist), box, weight)
-            loss = l_heat + l_box
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
-            opt.step()
+            batch = pool.mix([item[0], *item[2:6]], half, gen)
+            pool.add([item[1], *item[2:6]])  # the pool keeps the second colouring
+            losses = _train_step(model, opt, batch, arch, _lr(settings, step, elapsed))
             step += 1
             elapsed = time.perf_counter() - t0
-            losses = {"loss": loss.item(), "heat": l_heat.item(), "box": l_box.item(), "lr": lr}
             if progress is not None:
                 progress(step, elapsed, losses)
             if time.perf_counter() - last_ckpt >= settings.checkpoint_every_s:
@@ -290,6 +243,113 @@ def train(
     model.eval()
     save_weights(model, out, meta)
     return {**meta, "resumed": state is not None, "checkpoint": str(ckpt_path), "weights": str(out)}
+
+
+def _check(arch: Architecture, settings: TrainSettings) -> None:
+    """:raises ValueError: on a batch, network size or time budget that cannot train"""
+    if settings.batch < 2 or settings.batch % 2 or settings.batch // 2 > settings.replay:
+        raise ValueError(f"the batch (--batch) must be even, from 2 to {2 * settings.replay} (got {settings.batch})")
+    if not (32 <= arch.width_px <= 4096 and 32 <= arch.height_px <= 4096):
+        raise ValueError(f"the network's input (--width, --height) must be 32 to 4096 px per side "
+                         f"(got {arch.width_px}x{arch.height_px})")
+    if settings.minutes <= 0:
+        raise ValueError(f"minutes must be > 0 (got {settings.minutes})")
+
+
+@dataclass(frozen=True)
+class _Resume:
+    """What a checkpoint holds: the counters, and the states of the model, optimiser and replay generator."""
+
+    step: int
+    elapsed_s: float
+    next_seed: int
+    rendered: int
+    model: dict[str, Any]
+    optimizer: dict[str, Any]
+    generator: torch.Tensor
+
+
+def _read_checkpoint(path: Path, arch: Architecture) -> _Resume:
+    """:raises ValueError: if the checkpoint cannot be read or holds another network than ``arch``"""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        saved = Architecture.from_dict(state["arch"])
+        resume = _Resume(int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"]), int(state["rendered"]),
+                         state["model"], state["optimizer"], state["generator"])
+    except Exception as exc:  # noqa: BLE001 - a torn or foreign checkpoint: say so, do not guess
+        raise ValueError(f"cannot resume from {path}: {type(exc).__name__}: {exc} "
+                         "(delete it or pass --fresh)") from None
+    if saved != arch:
+        raise ValueError(f"{path} holds another network ({_describe(saved)}; asked: {_describe(arch)}): "
+                         "give the same options or pass --fresh")
+    return resume
+
+
+def _restore(state: _Resume, model: PointDetector, opt: torch.optim.Optimizer, gen: torch.Generator,
+             path: Path) -> None:
+    """Load a checkpoint's states into the model, the optimiser and the replay generator.
+
+    :raises ValueError: if they do not fit
+    """
+    try:
+        model.load_state_dict(state.model)
+        opt.load_state_dict(state.optimizer)
+        gen.set_state(state.generator)
+    except Exception as exc:  # noqa: BLE001 - any mismatch: one line naming the checkpoint
+        raise ValueError(f"cannot resume from {path}: {str(exc).splitlines()[0]} (pass --fresh)") from None
+
+
+_FIELDS = ("rgb", "depth", "heat", "box", "weight")
+"""The tensors of a batch, in order"""
+
+
+class _ReplayPool:
+    """The newest ``size`` frames (their second colouring), replayed as half of each batch.
+
+    :param size: frames kept [-]
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.tensors: dict[str, torch.Tensor] = {}
+        self.filled = 0
+        self.cursor = 0
+
+    def mix(self, batch: list[torch.Tensor], half: int, gen: torch.Generator) -> list[torch.Tensor]:
+        """:return: ``batch`` followed by ``half`` frames drawn from the pool (``gen``), once it holds that many"""
+        if self.filled < half:
+            return batch
+        pick = torch.randint(0, self.filled, (half,), generator=gen)
+        return [torch.cat([b, self.tensors[k][pick]]) for b, k in zip(batch, _FIELDS, strict=True)]
+
+    def add(self, fresh: list[torch.Tensor]) -> None:
+        """Keep a batch of frames (over the oldest ones when full)."""
+        if not self.tensors:
+            self.tensors = {k: torch.empty((self.size, *b.shape[1:]), dtype=b.dtype)
+                            for k, b in zip(_FIELDS, fresh, strict=True)}
+        for i in range(len(fresh[0])):
+            for k, b in zip(_FIELDS, fresh, strict=True):
+                self.tensors[k][self.cursor] = b[i]
+            self.cursor = (self.cursor + 1) % self.size
+            self.filled = min(self.filled + 1, self.size)
+
+
+def _train_step(model: PointDetector, opt: torch.optim.Optimizer, batch: list[torch.Tensor], arch: Architecture,
+                lr: float) -> dict[str, float]:
+    """One AdamW step at learning rate ``lr`` on a batch; :return: its losses and the learning rate."""
+    rgb, depth, heat, box, weight = batch
+    inp = to_input(rgb, arch, depth if arch.depth else None)
+    for g in opt.param_groups:
+        g["lr"] = lr
+    heat_logits, dist = model(inp)
+    l_heat = focal_loss(heat_logits, heat)
+    l_box = giou_loss(decode_boxes(dist), box, weight)
+    loss = l_heat + l_box
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+    opt.step()
+    return {"loss": loss.item(), "heat": l_heat.item(), "box": l_box.item(), "lr": lr}
 
 
 def _describe(arch: Architecture) -> str:

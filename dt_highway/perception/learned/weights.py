@@ -59,12 +59,16 @@ def load_weights(path: str | Path | None = None) -> tuple[PointDetector, dict]:
     if not path.is_file():
         raise FileNotFoundError(f"detector weights not found: {path}")
     if not zipfile.is_zipfile(path):
-        raise ValueError(f"{path} is not a detector weights file: not a torch zip archive (truncated, or another format)")
+        raise ValueError(
+            f"{path} is not a detector weights file: not a torch zip archive (truncated, or another format)"
+        )
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
-        raise ValueError(f"{path} holds Python objects, not plain weights: refused (loading it could run code)") from None
-    except Exception as exc:  # a damaged archive
+        raise ValueError(
+            f"{path} holds Python objects, not plain weights: refused (loading it could run code)"
+        ) from None
+    except Exception as exc:  # noqa: BLE001 - a damaged archive fails in many ways: one message for all
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ValueError(f"{path} is not a readable detector weights file ({first[:160]})") from None
     if not isinstance(obj, dict) or obj.get("format") != FORMAT:
@@ -85,4 +89,5 @@ def load_weights(path: str | Path | None = None) -> tuple[PointDetector, dict]:
         raise ValueError(f"{path}: weights do not fit their architecture ({what}, e.g. {(missing or wrong)[0]})")
     model.load_state_dict(given, strict=False)
     model.eval()
-    return model.to(memory_format=torch.channels_last), dict(obj.get("meta", {}))
+    model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # torch's stubs omit it
+    return model, dict(obj.get("meta", {}))

@@ -1,0 +1,332 @@
+"""Configuration models of the files in ``agents/``: scripted driver files and RL training files.
+
+They are the configuration of the ego's driver, as :mod:`dt_highway.config` is the env's, and
+follow its rules: pydantic models, every default and range written once (here), unknown keys,
+wrong types and out-of-range values refused with one :class:`~dt_highway.config.ConfigError`
+line naming the key (:func:`~dt_highway.config.config_error`, the env tree's error path).
+They live in a module of their own because the training file's model builds the env
+configuration of a condition (:mod:`dt_highway.conditions`, which imports
+:mod:`dt_highway.config`), so :mod:`dt_highway.config` cannot hold it without an import cycle.
+
+Driver files (``agents/<name>.toml``) name their ``kind``: ``human``
+(:class:`HumanParams`), ``idm`` (an ``[idm]`` table of :class:`IDMParams`) or ``random``
+(:class:`RandomParams`); anything left out keeps the default below. The drivers
+(:mod:`dt_highway.drivers.scripted`) take these frozen models as their parameters.
+
+Training files (``kind = "rl"``): :class:`TrainConfig`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+
+from dt_highway.conditions import condition_config
+from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, load_config, read_toml
+
+# ----------------------------------------------------------------------------- the Driver action's limits
+ACCEL_MIN_MPS2 = -8.0
+"""Hardest braking a driver can command [m/s^2] (about 0.8 g, a full stop on dry asphalt)"""
+ACCEL_MAX_MPS2 = 3.0
+"""Strongest acceleration a driver can command [m/s^2]"""
+DEFAULT_DISCRETE_ACCELS_MPS2 = (-6.0, -3.0, -1.0, 0.0, 1.0, 2.0)
+"""Accelerations of the ``DiscreteDriver`` action, keeping the lane [m/s^2]"""
+DEFAULT_SPEEDS_MPS = (18.0, 23.0, 27.0, 31.0)
+"""Desired speeds of the assisted menu [m/s] (65, 83, 97, 112 km/h)"""
+
+
+# ----------------------------------------------------------------------------- numbers of driver files
+def _non_negative(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError("must be a finite number >= 0")
+    return float(value)
+
+
+def _finite(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError("must be a finite number")
+    return float(value)
+
+
+def _flag(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError("must be true or false")
+    return value
+
+
+NonNegative = Annotated[float, BeforeValidator(_non_negative)]
+"""A finite number >= 0 (an integer is taken as the same float; ``true`` is not a number)"""
+Finite = Annotated[float, BeforeValidator(_finite)]
+"""A finite number of either sign"""
+Flag = Annotated[bool, BeforeValidator(_flag)]
+"""``true`` or ``false``, nothing else"""
+
+
+# ----------------------------------------------------------------------------- scripted drivers
+class IDMParams(FrozenSettings):
+    """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000, Phys. Rev. E 62, 1805).
+
+    :param desired_speed_mps: ``v0`` [m/s], > 0
+    :param time_headway_s: ``T`` [s]
+    :param min_gap_m: ``s0`` [m]
+    :param max_accel_mps2: ``a`` [m/s^2]
+    :param comfort_decel_mps2: ``b`` [m/s^2]
+    :param delta: acceleration exponent [-]
+    """
+
+    desired_speed_mps: NonNegative = Field(default=30.0, gt=0)
+    time_headway_s: NonNegative = 1.6
+    min_gap_m: NonNegative = 2.0
+    max_accel_mps2: NonNegative = 0.73
+    comfort_decel_mps2: NonNegative = 1.67
+    delta: NonNegative = 4.0
+
+
+class HumanParams(FrozenSettings):
+    """The human-like driver's parameters (:mod:`dt_highway.drivers.scripted` gives their sources).
+
+    :param idm: car following
+    :param reaction_time_s: ``T'`` [s]
+    :param distance_error: relative distance estimation error ``V_s`` [-]
+    :param inverse_ttc_error_per_s: ``r_c`` [1/s]
+    :param error_correlation_s: correlation time of the estimation errors [s]
+    :param politeness: MOBIL ``p`` [-]
+    :param lane_change_threshold_mps2: MOBIL ``Delta a_th`` [m/s^2]
+    :param safe_decel_mps2: MOBIL ``b_safe`` [m/s^2]
+    :param min_lane_change_interval_s: least time between two lane changes [s]
+    :param alert_headway_factor: time gap multiplier while warned [-]
+    :param alert_speed_factor: desired speed multiplier while warned [-]
+    :param alert_reaction_factor: reaction time multiplier while warned [-]
+    :param alert_ahead_m: a marked car this far ahead (own or next lane) warns [m]
+    :param alert_behind_m: a marked car in the next lane this far behind warns [m]
+    :param alert_hold_s: the warning lasts this long after the marker is gone [s]
+    :param anticipate_cut_in: keep a gap behind a marked car in the next lane
+    :param alert_ease_off_mps2: strongest deceleration that gap-keeping uses [m/s^2]
+    """
+
+    idm: IDMParams = IDMParams(desired_speed_mps=27.0)
+    reaction_time_s: NonNegative = 1.0
+    distance_error: NonNegative = 0.1
+    inverse_ttc_error_per_s: NonNegative = 0.01
+    error_correlation_s: NonNegative = 20.0
+    politeness: NonNegative = 0.2
+    lane_change_threshold_mps2: NonNegative = 0.2
+    safe_decel_mps2: NonNegative = 4.0
+    min_lane_change_interval_s: NonNegative = 10.0
+    alert_headway_factor: NonNegative = 1.4
+    alert_speed_factor: NonNegative = 0.95
+    alert_reaction_factor: NonNegative = 0.7
+    alert_ahead_m: NonNegative = 60.0
+    alert_behind_m: NonNegative = 10.0
+    alert_hold_s: NonNegative = 3.0
+    anticipate_cut_in: Flag = True
+    alert_ease_off_mps2: NonNegative = 0.5
+
+
+class RandomParams(FrozenSettings):
+    """The random driver's parameters.
+
+    :param accel_min_mps2: least acceleration [m/s^2]
+    :param accel_max_mps2: largest acceleration [m/s^2], > ``accel_min_mps2``
+    :param lane_change_prob: chance of a lane request per decision, in [0, 1] [-]
+    """
+
+    accel_min_mps2: Finite = -2.0
+    accel_max_mps2: Finite = 2.0
+    lane_change_prob: Finite = Field(default=0.02, ge=0, le=1)
+
+    @model_validator(mode="after")
+    def _range(self) -> RandomParams:
+        if not self.accel_min_mps2 < self.accel_max_mps2:
+            raise ValueError(f"a random driver needs accel_min_mps2 < accel_max_mps2 "
+                             f"(got {self.accel_min_mps2} and {self.accel_max_mps2})")
+        return self
+
+
+class HumanDriverFile(HumanParams):
+    """``kind = "human"``: the :class:`HumanParams` at the top level of the file."""
+
+    kind: Literal["human"]
+
+    def params(self) -> HumanParams:
+        """:return: the driver's parameters (the file without its ``kind``)"""
+        return HumanParams.model_validate(self.model_dump(exclude={"kind"}))
+
+
+class IDMDriverFile(FrozenSettings):
+    """``kind = "idm"``: the :class:`IDMParams` in an ``[idm]`` table."""
+
+    kind: Literal["idm"]
+    idm: IDMParams = IDMParams()
+
+
+class RandomDriverFile(RandomParams):
+    """``kind = "random"``: the :class:`RandomParams` at the top level of the file."""
+
+    kind: Literal["random"]
+
+    def params(self) -> RandomParams:
+        """:return: the driver's parameters (the file without its ``kind``)"""
+        return RandomParams.model_validate(self.model_dump(exclude={"kind"}))
+
+
+DriverFile = Annotated[HumanDriverFile | IDMDriverFile | RandomDriverFile, Field(discriminator="kind")]
+"""A scripted driver file, told apart by its ``kind``"""
+_DRIVER_FILES: dict[str, type[FrozenSettings]] = {
+    get_args(m.model_fields["kind"].annotation)[0]: m for m in (HumanDriverFile, IDMDriverFile, RandomDriverFile)
+}
+DRIVER_KINDS: tuple[str, ...] = tuple(_DRIVER_FILES)
+"""The ``kind`` of a scripted driver file"""
+_DRIVER_FILE: TypeAdapter[HumanDriverFile | IDMDriverFile | RandomDriverFile] = TypeAdapter(DriverFile)
+
+
+def parse_driver_file(tree: dict[str, Any]) -> HumanDriverFile | IDMDriverFile | RandomDriverFile:
+    """Validate a parsed driver file.
+
+    :param tree: the file's contents (``kind`` and parameters)
+    :return: the file's model
+    :raises ConfigError: one line, on an unknown kind, key or a bad value (a training file,
+        ``kind = "rl"``, is refused with how to train it)
+    """
+    kind = tree.get("kind") if isinstance(tree, dict) else None
+    if kind == "rl":
+        raise ConfigError("this is an RL training config: train it (dt-highway train --config FILE --out "
+                          "agents/NAME.zip) and drive with the .zip")
+    if kind not in DRIVER_KINDS:
+        kinds = ", ".join(repr(k) for k in DRIVER_KINDS)
+        raise ConfigError(f"a driver file needs kind = one of {kinds} (got {kind!r})")
+    try:
+        return _DRIVER_FILE.validate_python(tree)
+    except ValidationError as exc:
+        raise config_error(exc, _DRIVER_FILES[kind], prefix="", skip=1) from None
+
+
+# ----------------------------------------------------------------------------- training files
+OBSERVATIONS = ("kinematics", "adas", "vision")
+ALGORITHMS = ("PPO", "DQN")
+VISION_CAMERA = {"width_px": 128, "height_px": 72}
+"""Camera size of the vision setting unless the scenario or ``set`` says otherwise [px]"""
+
+
+class TrainConfig(BaseModel):
+    """What ``dt-highway train`` trains: an RL training file (``agents/<name>.toml``, ``kind = "rl"``).
+
+    A training file names the algorithm, the observation setting and the scenario; everything
+    left out keeps the defaults below. Example (``agents/ppo-baseline.toml``)::
+
+        kind = "rl"
+        algorithm = "PPO"
+        observation = "kinematics"      # kinematics | adas | vision
+        scenario = "envs/highway-trial.toml"
+        timesteps = 200000
+        [hyperparameters]               # passed to the stable-baselines3 algorithm
+        learning_rate = 0.0003
+
+    Observation settings:
+
+    * ``kinematics`` (baseline): highway-env's Kinematics observation of the nearest vehicles
+      (``presence, x, y, vx, vy``, relative to the ego, normalised).
+    * ``adas`` (ADAS-aware): the same plus ``marked``, 1 where the ADAS overlay shows an
+      "aggressive driver" marker on that car (:class:`~dt_highway.env.OverlayKinematics`):
+      the twin's verdict as delivered through the fusion and the overlay, never ground truth.
+      It trains in the ADAS condition (camera and fusion on).
+    * ``vision``: the ego camera's ``rgb`` image (and ``depth`` with ``depth = true``) for a CNN
+      policy (stable-baselines3's ``MultiInputPolicy``); the camera is made small for it.
+
+    Actions (``action``): the ``DiscreteDriver`` menu
+    (:class:`~dt_highway.env.actions.DiscreteDriverAction`): ``pedals``, keep the lane with
+    one of ``accels_mps2`` or ask for one lane left or right; ``assisted``
+    (:class:`~dt_highway.env.assisted.AssistedMenu`), choose one of ``speeds_mps`` as desired
+    speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    kind: Literal["rl"] = "rl"
+    algorithm: Literal["PPO", "DQN"] = Field("PPO", description="stable-baselines3 algorithm")
+    observation: Literal["kinematics", "adas", "vision"] = Field("kinematics", description="observation setting")
+    depth: bool = Field(False, description="vision: also the depth image")
+    scenario: str = Field("envs/highway-trial.toml", description="scenario file the policy trains on")
+    set: list[str] = Field(default_factory=list, description="dotted.key=value overrides of the scenario")
+    timesteps: int = Field(200_000, gt=0, description="env steps to train for [-]")
+    n_envs: int = Field(2, ge=1, le=64, description="parallel envs (SubprocVecEnv when > 1) [-]")
+    seed: int = Field(0, ge=0, description="seed of the model and of the training envs")
+    vehicles_count: int = Field(7, ge=2, le=30, description="kinematics/adas: observed vehicles, ego included [-]")
+    see_behind: bool = Field(True, description="kinematics/adas: observe vehicles behind too")
+    action: Literal["pedals", "assisted"] = Field(
+        "pedals",
+        description="pedals: choose accelerations; assisted: choose a desired speed or a lane, IDM keeps the gap",
+    )
+    accels_mps2: list[float] = Field(default_factory=lambda: list(DEFAULT_DISCRETE_ACCELS_MPS2),
+                                     description="pedals: accelerations of the action menu [m/s^2]")
+    speeds_mps: list[float] = Field(default_factory=lambda: list(DEFAULT_SPEEDS_MPS),
+                                    description="assisted: desired speeds of the action menu [m/s]")
+    eval_every_steps: int = Field(20_000, gt=0, description="evaluate on held-out seeds this often [steps]")
+    eval_episodes: int = Field(4, ge=1, description="episodes per evaluation [-]")
+    eval_seed: int = Field(100_000, ge=0, description="first seed of the evaluation episodes")
+    checkpoint_every_steps: int = Field(50_000, gt=0, description="save a checkpoint this often [steps]")
+    hyperparameters: dict[str, Any] = Field(default_factory=dict, description="keyword arguments of the algorithm")
+    policy_kwargs: dict[str, Any] = Field(default_factory=dict, description="policy_kwargs of the algorithm")
+
+    @model_validator(mode="after")
+    def _menus(self) -> TrainConfig:
+        if not self.accels_mps2 or not all(ACCEL_MIN_MPS2 <= a <= ACCEL_MAX_MPS2 for a in self.accels_mps2):
+            raise ValueError(f"accels_mps2 must be a non-empty list within [{ACCEL_MIN_MPS2}, {ACCEL_MAX_MPS2}] m/s^2")
+        if not self.speeds_mps or not all(0 < v <= 45 for v in self.speeds_mps):
+            raise ValueError("speeds_mps must be a non-empty list of speeds in (0, 45] m/s")
+        return self
+
+    def env_config(self, condition: str | None = None) -> DTConfig:
+        """The env configuration of this policy: its scenario and overrides, its observation
+        and action, in the condition it trains in (or ``condition``: ``baseline``/``adas``).
+
+        :raises ConfigError: on a bad scenario or override
+        """
+        condition = condition or ("adas" if self.observation == "adas" else "baseline")
+        extra = condition_config(condition)
+        extra["highway"] = {"observation": self.observation_config(), "action": self.action_config()}
+        if self.observation == "vision":
+            extra["camera"] = {**VISION_CAMERA, "enabled": True}
+        return load_config(self.scenario, list(self.set), extra)
+
+    def observation_config(self) -> dict[str, Any]:
+        """The ``highway.observation`` table of this setting."""
+        if self.observation == "vision":
+            return {"type": "Camera", "depth": self.depth}
+        kind = "OverlayKinematics" if self.observation == "adas" else "Kinematics"
+        return {"type": kind, "vehicles_count": self.vehicles_count, "see_behind": self.see_behind}
+
+    def action_config(self) -> dict[str, Any]:
+        """The ``highway.action`` table: the discrete menu over the Driver action."""
+        if self.action == "assisted":
+            return {"type": "DiscreteDriver", "assist": True, "speeds_mps": list(self.speeds_mps)}
+        return {"type": "DiscreteDriver", "accels_mps2": list(self.accels_mps2)}
+
+
+def parse_train_config(tree: dict[str, Any], where: str = "training config") -> TrainConfig:
+    """Validate a parsed training file.
+
+    :param tree: the file's contents
+    :param where: the file, for the message
+    :raises ConfigError: one line naming each bad key and what is allowed
+    """
+    try:
+        return TrainConfig.model_validate(tree)
+    except ValidationError as exc:
+        raise config_error(exc, TrainConfig, prefix=f"{where}: ") from None
+
+
+def load_train_config(path: str | Path) -> TrainConfig:
+    """Read and validate ``agents/<name>.toml`` (``kind = "rl"``).
+
+    :raises ConfigError: on a missing or unreadable file, or bad contents
+    """
+    p = Path(path)
+    tree = read_toml(p, "training config")
+    if tree.get("kind") != "rl":
+        raise ConfigError(f"{p}: a training config needs kind = \"rl\" (got {tree.get('kind')!r}; "
+                          f"scripted drivers are not trained)")
+    return parse_train_config(tree, str(p))
