@@ -443,7 +443,7 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
         def progress(step: int, elapsed_s: float, losses: dict[str, float]) -> None:
             if bar.n == 0 and elapsed_s > 5:  # resumed: time left counts from here
                 bar.initial = elapsed_s
-                bar.start_t = bar._time()
+                bar.start_t = time.time()  # tqdm's clock (not bar._time: a disabled bar, --quiet, has none)
             bar.n = min(elapsed_s, total)
             if step % 10 == 0:
                 bar.set_postfix(step=step, loss=f"{losses['loss']:.3f}", refresh=False)

@@ -303,7 +303,8 @@ class TaggerConfig(_Section):
     sudden_gap_s: float = Field(
         0.8, ge=0, description="a lane change accepting a time gap below this to the new follower is sudden [s]"
     )
-    rate_aggressive_per_min: float = Field(1.0, gt=0, description="twin's model: sudden changes of an aggressive driver [1/min]")
+    rate_aggressive_per_min: float = Field(
+        1.0, gt=0, description="twin's model: sudden changes of an aggressive driver [1/min]")
     rate_normal_per_min: float = Field(0.2, gt=0, description="twin's model: sudden changes of a normal driver [1/min]")
     prior_aggressive: float = Field(0.2, gt=0, lt=1, description="twin's prior share of aggressive drivers [-]")
     threshold: float = Field(0.6, gt=0, lt=1, description="posterior above which the tag is 'aggressive' [-]")

@@ -14,13 +14,14 @@ aborted without stopping the others.
 from __future__ import annotations
 
 import json
+import socket
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -28,6 +29,7 @@ import numpy as np
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import load_driver
+from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.trial_log import (
@@ -163,13 +165,13 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
                           deep_merge(condition_config(spec.condition), driver.config_overrides()))
     except ConfigError as err:
         return {"status": "failed", "directory": str(out), "error": str(err)}
-    meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(), "participant": spec.participant,
-            "condition": spec.condition, "pair": spec.index, "seed": spec.seed, "scenario": spec.scenario,
-            "overrides": list(spec.overrides), "config": cfg.to_dict(),
+    meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(),
+            "participant": spec.participant, "condition": spec.condition, "pair": spec.index, "seed": spec.seed,
+            "scenario": spec.scenario, "overrides": list(spec.overrides), "config": cfg.to_dict(),
             "simulation_frequency_hz": cfg.highway.simulation_frequency}
     try:
         env = gym.make("dt-highway-v0", config=cfg.to_dict())
-        u = env.unwrapped
+        u = cast(DTHighwayEnv, env.unwrapped)
         with TrialWriter(out, meta) as log:
             _, info = env.reset(seed=spec.seed)
             seat = DriverSeat(u, driver.senses)  # what the driver perceives: never the env or info
@@ -278,8 +280,6 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     """Fail fast with one line when a Ray address (``host:port`` or ``ray://host:port``)
     does not answer (Ray itself retries for minutes)."""
-    import socket
-
     host, _, port = address.removeprefix("ray://").rpartition(":")
     if not host or not port.isdigit():
         raise ConfigError(f"--ray-address must be host:port, ray://host:port or auto (got {address!r})")
@@ -297,7 +297,7 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> I
     installed and see the study directory, e.g. on a shared file system).
     """
     try:
-        import ray
+        import ray  # lazy: optional extra (pip install dt-highway[ray])
     except ImportError:
         raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
     if address is not None and address != "auto":

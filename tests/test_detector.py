@@ -10,10 +10,10 @@ import pytest
 import torch
 
 from dt_highway.cli import main
+from dt_highway.evaluation.detector import evaluate
 from dt_highway.perception.detect import iou
 from dt_highway.perception.learned import SHIPPED, Architecture, LearnedDetector, PointDetector, load_weights, save_weights
 from dt_highway.perception.learned.data import TRAIN_SEED0, SceneSettings, make_frame, scored
-from dt_highway.evaluation.detector import evaluate
 from dt_highway.perception.learned.model import cell_centres, make_targets, peaks
 from dt_highway.perception.learned.train import TrainSettings, randomise_colours, train
 
@@ -79,7 +79,7 @@ def test_a_tiny_training_run_lowers_the_loss_and_resumes(tmp_path) -> None:
     out = tmp_path / "tiny.pt"
     settings = TrainSettings(minutes=5.0, batch=8, lr=3e-3, warmup_steps=5, replay=64, max_steps=40,
                              checkpoint_every_s=3600)
-    r = train(out, TINY, settings, progress=lambda s, e, l: losses.append(l["loss"]))
+    r = train(out, TINY, settings, progress=lambda s, e, logs: losses.append(logs["loss"]))
     assert r["steps"] == 40 and not r["resumed"] and out.is_file()
     # seeded: 8.32 -> 5.99 here; the margin allows for other CPUs' floating-point sums
     first, last = np.mean(losses[:5]), np.mean(losses[-8:])

@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 
 from dt_highway.cli import main
-from dt_highway.overlay import MARK_RGB
 from dt_highway.metrics.trial_log import load_trial
+from dt_highway.overlay import MARK_RGB
 
 FAST = ["--set", "highway.vehicles_count=16", "--set", "twin.preroll_s=20", "--set", "camera.width_px=480",
         "--set", "camera.height_px=270", "--no-minimap"]

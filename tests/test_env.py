@@ -50,7 +50,8 @@ def _trace(cfg, seed, steps=6):
         out["obs"].append(obs)
         out["pos"].append(sorted((v.dt_id, tuple(np.round(v.position, 9))) for v in u.road.vehicles))
         out["twin"].append(info["twin"])
-        out["tags"].append(sorted((vid, r.tag, r.n_sudden, round(r.confidence, 12)) for vid, r in u.twin.tagger.records.items()))
+        records = u.twin.tagger.records.items()
+        out["tags"].append(sorted((vid, r.tag, r.n_sudden, round(r.confidence, 12)) for vid, r in records))
         if term or trunc:
             break
     env.close()
@@ -62,7 +63,7 @@ def test_same_seed_same_everything(small_config):
     assert a["pos"] == b["pos"]
     assert a["twin"] == b["twin"]
     assert a["tags"] == b["tags"]
-    assert all(np.array_equal(x, y) for x, y in zip(a["obs"], b["obs"]))
+    assert all(np.array_equal(x, y) for x, y in zip(a["obs"], b["obs"], strict=True))
     c = _trace(small_config, 8)
     assert a["pos"] != c["pos"]
 

@@ -10,11 +10,11 @@ from highway_env.vehicle.kinematics import Vehicle
 
 import dt_highway  # noqa: F401  (registers the env)
 from dt_highway.env import DTHighwayEnv
+from dt_highway.twin import FixStore, GnssFix, HighwayMap
+from dt_highway.twin.tagger import median
 from dt_highway.world.observation import FastKinematicObservation
 from dt_highway.world.road import BROAD_PHASE_MARGIN_M, FastRoadNetwork
 from dt_highway.world.vehicle import FastIDMVehicle, surely_apart
-from dt_highway.twin import FixStore, GnssFix, HighwayMap
-from dt_highway.twin.tagger import median
 
 DT = 1 / 15
 
@@ -58,14 +58,14 @@ def test_fast_idm_decides_and_moves_as_highway_env():
         for _ in range(45):  # 3 s: MOBIL fires, lane changes start
             for road in (stock, fast):
                 road.act()
-            for a, b in zip(stock.vehicles, fast.vehicles):
+            for a, b in zip(stock.vehicles, fast.vehicles, strict=True):
                 assert a.target_lane_index == b.target_lane_index
                 assert abs(a.action["steering"] - b.action["steering"]) <= 1e-9
                 assert abs(a.action["acceleration"] - b.action["acceleration"]) <= 1e-9
             lane_changes += sum(v.lane_index != v.target_lane_index for v in fast.vehicles)
             for road in (stock, fast):
                 road.step(DT)
-            for a, b in zip(stock.vehicles, fast.vehicles):
+            for a, b in zip(stock.vehicles, fast.vehicles, strict=True):
                 assert np.abs(a.position - b.position).max() <= 1e-9 and abs(a.speed - b.speed) <= 1e-9
                 assert a.lane_index == b.lane_index and a.crashed == b.crashed
     assert lane_changes > 0  # MOBIL's decisions were compared, not only car following
@@ -125,7 +125,7 @@ def test_median_and_lane_of_one_are_numpys():
 class _WideBerth(Vehicle):
     """A vehicle with its own collision check: contact within its length plus 0.5 m."""
 
-    def _is_colliding(self, other, dt):  # noqa: ANN001, ANN202 - highway-env's signature
+    def _is_colliding(self, other, dt):
         close = bool(np.linalg.norm(other.position - self.position) < self.LENGTH + 0.5)
         return close, False, np.zeros(2)
 

@@ -228,7 +228,7 @@ def test_decoupled_filters_equal_sorts_full_kalman_filter(seed):
         assert sorted(t.track_id for t in tracker.tracks) == list(range(1, n + 1))
         coast_ids, coast_boxes = tracker.coasting(min_hits=1)
         assert sorted(coast_ids.tolist()) == [i + 1 for i in range(n) if not seen[i]]
-        for tid, box in zip(coast_ids.tolist(), coast_boxes):
+        for tid, box in zip(coast_ids.tolist(), coast_boxes, strict=True):
             np.testing.assert_allclose(box, ref[tid - 1].box(), rtol=1e-9, atol=1e-9)
             compared += 1
     assert compared > 20

@@ -7,8 +7,8 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
 from dt_highway.drivers import HumanDriver, HumanParams, IDMDriver, load_driver, make_driver
-from dt_highway.study import freeze_inputs, plan, run_study
 from dt_highway.metrics.trial_log import load_trial
+from dt_highway.study import freeze_inputs, plan, run_study
 
 SHORT = ["highway.duration=4", "highway.vehicles_count=12", "twin.preroll_s=5"]
 

@@ -7,7 +7,15 @@ import pytest
 
 from dt_highway.config import DownlinkConfig, TaggerConfig, TwinConfig, UplinkConfig
 from dt_highway.twin import (
-    CloudTwin, Downlink, FixStore, GnssFix, HighwayMap, Tagger, Uplink, VehicleState, posterior_aggressive,
+    CloudTwin,
+    Downlink,
+    FixStore,
+    GnssFix,
+    HighwayMap,
+    Tagger,
+    Uplink,
+    VehicleState,
+    posterior_aggressive,
 )
 from dt_highway.twin.cloud import load_records, save_records
 from dt_highway.twin.tagger import fit_ramp
@@ -73,7 +81,7 @@ def _judge(lat_speed, noise, seed):
     rng = np.random.default_rng(seed)
     t, y = _lane_change_track(lat_speed, noise, rng)
     store = FixStore(60.0)
-    store.add(GnssFix(7, float(ti), 25.0 * ti, float(yi), 25.0, 0.0, float(ti)) for ti, yi in zip(t, y))
+    store.add(GnssFix(7, float(ti), 25.0 * ti, float(yi), 25.0, 0.0, float(ti)) for ti, yi in zip(t, y, strict=True))
     seen = []
     tagger = Tagger(TaggerConfig(), HighwayMap(4.0, 3))
     tagger.on_lane_change = lambda vid, lc: seen.append(lc)
@@ -129,7 +137,8 @@ def test_cloud_only_sees_fixes_after_they_arrive():
 
 
 def test_downlink_view_latency_radius_and_no_ego():
-    cfg = TwinConfig(downlink=DownlinkConfig(rate_hz=10, latency_mean_s=0.2, latency_jitter_s=0.0, loss_prob=0.0, radius_m=100))
+    link = DownlinkConfig(rate_hz=10, latency_mean_s=0.2, latency_jitter_s=0.0, loss_prob=0.0, radius_m=100)
+    cfg = TwinConfig(downlink=link)
     twin = CloudTwin(cfg, HighwayMap(4.0, 3))
     fixes = [GnssFix(0, 0.0, 0.0, 4.0, 25, 0, 0.0), GnssFix(1, 0.0, 50.0, 0.0, 25, 0, 0.0),
              GnssFix(2, 0.0, 500.0, 0.0, 25, 0, 0.0)]

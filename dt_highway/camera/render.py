@@ -152,7 +152,8 @@ class _Model:
     normals: np.ndarray  # (F, 3) outward unit normals in the unit frame (x fwd, y right, z up)
 
 
-def _frustum(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float, inset_x=(0.0, 0.0), inset_y=0.0):
+def _frustum(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float, inset_x: tuple[float, float] = (0.0, 0.0),
+             inset_y: float = 0.0) -> tuple[list[tuple[float, float, float]], list[tuple[int, int, int, int]]]:
     bx = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
     tx = [(x0 + inset_x[0], y0 + inset_y), (x1 - inset_x[1], y0 + inset_y), (x1 - inset_x[1], y1 - inset_y),
           (x0 + inset_x[0], y1 - inset_y)]
@@ -191,7 +192,7 @@ def _car_model(body_top: float = 0.55) -> _Model:
         on_side(face, y, 0.23, 0.39, 0.0, 0.5 * h, "wheel")
     v = np.array(verts, dtype=float)
     normals = []
-    for f, part in zip(faces, face_part):
+    for f, part in zip(faces, face_part, strict=True):
         q = v[list(f)]
         n = np.cross(q[1] - q[0], q[2] - q[0])
         part_centre = v[:8].mean(axis=0) if part == 0 else v[8:16].mean(axis=0)
@@ -398,7 +399,7 @@ class CameraRenderer:
         m = self.model
         # the decals lying on each face, and every polygon's vertex indices
         self._face_decals = [
-            [len(m.faces) + j for j in np.flatnonzero(m.decal_face == f)] for f in range(len(m.faces))
+            [len(m.faces) + int(j) for j in np.flatnonzero(m.decal_face == f)] for f in range(len(m.faces))
         ]
         self._polys = np.concatenate([m.faces, m.decals])  # (F + D, 4) vertex indices
         decal_colour = np.array([_DECAL_COLOURS[kind] for kind in m.decal_kind], dtype=float)
@@ -486,7 +487,8 @@ class CameraRenderer:
         d = np.einsum("nfk,nfk->nf", normal, pc[:, m.faces[:, 0]])  # plane: normal . P = d
         front = d < -1e-9  # the camera is on the outer side of the face's plane
         paint = paint_of(ids)
-        colour = np.where(m.face_glass[None, :, None], np.array(_GLASS, dtype=float)[None, None] * (0.75 + 0.25 * shade[..., None]),
+        glass = np.array(_GLASS, dtype=float)[None, None] * (0.75 + 0.25 * shade[..., None])
+        colour = np.where(m.face_glass[None, :, None], glass,
                           paint[:, None, :] * shade[..., None])
         colour = np.concatenate([colour, np.broadcast_to(self._decal_colour[None], (len(idx), len(m.decals), 3))
                                  * (0.8 + 0.2 * shade[:, m.decal_face, None])], axis=1)
@@ -507,7 +509,7 @@ class CameraRenderer:
         boxes = np.concatenate([uv_hull.min(axis=1), uv_hull.max(axis=1)], axis=1)  # (n, 4)
         fixed = np.round(np.where(crossing[:, None, None], 0.0, uv) * _ONE).astype(np.int32)
         clipped: dict[int, list[tuple[int, np.ndarray]]] = {}
-        for i in np.flatnonzero(crossing):
+        for i in np.flatnonzero(crossing).tolist():
             polys = self._clipped_polygons(pc[i], front[i], near)
             if not polys:
                 boxes[i] = np.nan
@@ -567,7 +569,8 @@ class CameraRenderer:
             rec_code.extend(codes)
             # nothing nearer is painted yet: the vehicle's face ids in its window are its
             # whole (amodal) in-image shape
-            amodal_px[i] = count(in_range(face_map[y0:y1, x0:x1], k0, n_painted)) if n_painted >= k0 and x1 > x0 and y1 > y0 else 0
+            inside = n_painted >= k0 and x1 > x0 and y1 > y0
+            amodal_px[i] = count(in_range(face_map[y0:y1, x0:x1], k0, n_painted)) if inside else 0
         if not rec_v:
             return None
         rv, rc = np.array(rec_v), np.array(rec_code)
@@ -618,7 +621,8 @@ class CameraRenderer:
                         poly = _clip_near(poly, near)
                         if len(poly) < 3:
                             continue
-                    uv = np.stack([k.fx_px * poly[:, 0] / poly[:, 2] + k.cx_px, k.fy_px * poly[:, 1] / poly[:, 2] + k.cy_px], 1)
+                    uv = np.stack([k.fx_px * poly[:, 0] / poly[:, 2] + k.cx_px,
+                                   k.fy_px * poly[:, 1] / poly[:, 2] + k.cy_px], 1)
                     out.append((code, np.round(uv * _ONE).astype(np.int32)))
         return out
 
@@ -654,7 +658,7 @@ class CameraRenderer:
             return [int(cand[q]) for q in np.argsort(-z_lo, kind="stable")]
         before: list[list[int]] = [[] for _ in range(n)]  # before[a]: those painted after a
         indeg = [0] * n
-        for a, bb, af in zip(ii[by_depth].tolist(), jj[by_depth].tolist(), a_nearer[by_depth].tolist()):
+        for a, bb, af in zip(ii[by_depth].tolist(), jj[by_depth].tolist(), a_nearer[by_depth].tolist(), strict=True):
             back, fr = (bb, a) if af else (a, bb)
             before[back].append(fr)
             indeg[fr] += 1
@@ -682,7 +686,7 @@ class CameraRenderer:
             rows = np.arange(len(ii))
             has_sep = separated[rows, first]
             a_front = np.where(has_sep, a_front_axis[rows, first], depth[cand[ii]] < depth[cand[jj]])
-            for a, bb, af in zip(ii.tolist(), jj.tolist(), a_front.tolist()):
+            for a, bb, af in zip(ii.tolist(), jj.tolist(), a_front.tolist(), strict=True):
                 back, fr = (bb, a) if af else (a, bb)
                 before[back].append(fr)
                 indeg[fr] += 1

@@ -10,6 +10,7 @@ from typing import Any
 from dt_highway.agent_config import DRIVER_KINDS, HumanDriverFile, IDMDriverFile, parse_driver_file
 from dt_highway.config import ConfigError, read_toml
 from dt_highway.drivers.base import Driver
+from dt_highway.drivers.policy import load_policy
 from dt_highway.drivers.scripted import HumanDriver, IDMDriver, RandomDriver
 
 KINDS = DRIVER_KINDS
@@ -38,8 +39,6 @@ def load_driver(path: str | Path) -> Driver:
     """
     p = Path(path)
     if p.suffix == ".zip":
-        from dt_highway.drivers.policy import load_policy
-
         return load_policy(p)
     tree = read_toml(p, "driver file")
     try:

@@ -26,5 +26,6 @@ def idm_accel(speed_mps: float, gap_m: float, closing_mps: float, p: IDMParams,
     free = 1.0 - (max(speed_mps, 0.0) / v0) ** p.delta
     if not math.isfinite(gap_m):
         return p.max_accel_mps2 * free
-    s_star = p.min_gap_m + max(0.0, speed_mps * t + speed_mps * closing_mps / (2.0 * math.sqrt(p.max_accel_mps2 * p.comfort_decel_mps2)))
+    s_star = p.min_gap_m + max(0.0, speed_mps * t
+                               + speed_mps * closing_mps / (2.0 * math.sqrt(p.max_accel_mps2 * p.comfort_decel_mps2)))
     return p.max_accel_mps2 * (free - (s_star / max(gap_m, 0.1)) ** 2)

@@ -182,7 +182,8 @@ class HumanDriver(Driver):
                     g, c = self._estimate(other, age, v - other.speed_mps)
                     shadow = idm_accel(v, g, c, p.idm, v0, t_gap)
                     accel = min(accel, max(shadow, -p.alert_ease_off_mps2))
-        lane = self._lane_change(seen, accel, v, v0, t_gap, age) if now.t_s - self._last_change_s >= p.min_lane_change_interval_s else 0
+        may_change = now.t_s - self._last_change_s >= p.min_lane_change_interval_s
+        lane = self._lane_change(seen, accel, v, v0, t_gap, age) if may_change else 0
         if lane:
             self._last_change_s = now.t_s
         return np.array([np.clip(accel, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2), float(lane)])
@@ -202,7 +203,8 @@ class HumanDriver(Driver):
             if math.isfinite(follow.gap_m):
                 # the new follower's braking, behind us instead of behind its old leader
                 a_f_new = idm_accel(follow.speed_mps, follow.gap_m, follow.speed_mps - v, p.idm)
-                a_f_old = idm_accel(follow.speed_mps, follow.gap_m + 5.0 + (lead.gap_m if math.isfinite(lead.gap_m) else math.inf),
+                lead_gap = lead.gap_m if math.isfinite(lead.gap_m) else math.inf
+                a_f_old = idm_accel(follow.speed_mps, follow.gap_m + 5.0 + lead_gap,
                                     follow.speed_mps - lead.speed_mps, p.idm)
             else:
                 a_f_new = a_f_old = 0.0

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.action import ActionType
+from highway_env.road.road import LaneIndex
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
@@ -30,6 +31,7 @@ class DrivenVehicle(ControlledVehicle):
     """
 
     MIN_SPEED = 0.0  # [m/s] no reversing on a highway
+    target_lane_index: LaneIndex
 
     def __init__(self, road: Any, position: Any, heading: float = 0, speed: float = 0, target_lane_index: Any = None,
                  target_speed: float | None = None, route: Any = None) -> None:
@@ -103,7 +105,7 @@ class DriverAction(ActionType):
         self.accel_min_mps2 = float(accel_min_mps2)
         self.accel_max_mps2 = float(accel_max_mps2)
 
-    def space(self) -> spaces.Box:
+    def space(self) -> spaces.Space:
         return spaces.Box(np.array([self.accel_min_mps2, -1.0], dtype=np.float32),
                           np.array([self.accel_max_mps2, 1.0], dtype=np.float32), dtype=np.float32)
 

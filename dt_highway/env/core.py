@@ -81,6 +81,13 @@ def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
     return CameraRenderer(camera, scene, settings)
 
 
+def _uplink_state(v: Vehicle) -> VehicleState:
+    """A connected vehicle's true state at the end of a step, as its GNSS unit measures it."""
+    x_m, y_m = v.position.tolist()
+    vx_mps, vy_mps = velocity(v)
+    return VehicleState(vehicle_id(v), x_m, y_m, vx_mps, vy_mps, float(v.speed), float(v.heading))
+
+
 class DTHighwayEnv(HighwayEnv):
     """The dt-highway environment (see the module docstring).
 
@@ -89,7 +96,7 @@ class DTHighwayEnv(HighwayEnv):
     :param render_mode: ``None``, ``"human"`` or ``"rgb_array"`` (highway-env's top-down view)
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
+    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
     config: dict[str, Any]
     """highway-env's flat configuration, derived from ``dt_config``
     (a :class:`~dt_highway.env.flat_config.FlatConfig`)"""
@@ -251,7 +258,8 @@ class DTHighwayEnv(HighwayEnv):
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))
         names = ("traffic", "uplink", "downlink", "detector", "fusion")
-        return {n: np.random.default_rng(s) for n, s in zip(names, np.random.SeedSequence(seed).spawn(len(names)))}
+        seeds = np.random.SeedSequence(seed).spawn(len(names))
+        return {n: np.random.default_rng(s) for n, s in zip(names, seeds, strict=True)}
 
     def _build_persistent(self) -> None:
         """Population and twin live across episodes; rebuilt only when their config changes."""
@@ -293,6 +301,7 @@ class DTHighwayEnv(HighwayEnv):
             # stock highway-v0's vehicles, speeds and behaviours exactly
             super()._create_vehicles()
         rngs = self._component_rngs()
+        assert self.population is not None  # built by _build_persistent
         self.traffic = TrafficManager(cfg.traffic, self.population, rngs["traffic"])
         self.uplink = Uplink(cfg.twin.uplink, rngs["uplink"])
         self.downlink = Downlink(cfg.twin.downlink, rngs["downlink"])
@@ -327,6 +336,7 @@ class DTHighwayEnv(HighwayEnv):
         self._build_camera()
         self.adas = None
         if cfg.fusion.enabled:
+            assert self.camera is not None  # the config refuses fusion without the camera
             self.pipeline = AdasPipeline.from_config(cfg, self.camera.camera, rngs["detector"], rngs["fusion"])
             self.detector, self.fusion, self.overlay = self.pipeline.detector, self.pipeline.fusion, self.pipeline.overlay
         else:
@@ -393,6 +403,7 @@ class DTHighwayEnv(HighwayEnv):
 
     def _create_typed_vehicles(self) -> None:
         hw = self.dt_config.highway
+        assert self.traffic is not None  # made by _reset before the vehicles
         lane_id = hw.initial_lane_id if hw.initial_lane_id is not None else int(self.traffic.rng.integers(hw.lanes_count))
         lane_id = min(lane_id, hw.lanes_count - 1)
         lane_index = ("0", "1", lane_id)
@@ -494,10 +505,11 @@ class DTHighwayEnv(HighwayEnv):
         if self.twin is not None:
             now = self.twin_now_s
             states = [
-                VehicleState(vehicle_id(v), *v.position.tolist(), *velocity(v), float(v.speed), float(v.heading))
+                _uplink_state(v)
                 for v in self.road.vehicles
                 if getattr(v, "dt_connected", False)
             ]
+            assert self.uplink is not None and self.downlink is not None  # made with the twin in _reset
             self.twin.receive(self.uplink.sample(t_prev, now, states))
             self.twin.advance(now)
             self.twin_view = self.downlink.step(self.twin, EGO_ID, now)
@@ -578,6 +590,7 @@ class DTHighwayEnv(HighwayEnv):
         """The ADAS pipeline on this step's frame and twin view (see :class:`~dt_highway.env.adas.AdasPipeline`)."""
         view = self.twin_view.vehicles if self.twin_view is not None else ()
         image, truth = self._camera_frame()
+        assert self.pipeline is not None  # adas_output() runs this only with the fusion on
         return self.pipeline.run(image, truth, view, self.twin_now_s, self.sim_time_s)
 
     def _twin_info(self) -> list[dict[str, Any]] | None:

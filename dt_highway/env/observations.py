@@ -40,6 +40,8 @@ class _KinematicsPlus(FastKinematicObservation):
     sorted order; the rows are shuffled afterwards if the observation asks for it."""
 
     EXTRA_FEATURES: list[str] = []
+    features: list[str]
+    order: str
 
     def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
@@ -95,7 +97,7 @@ class TwinTaggedKinematics(_KinematicsPlus):
         ])
         pos = np.array([o.position for o in rows[1:]])
         cost = np.linalg.norm(pos[:, None, :] - pred[None, :, :], axis=2)
-        for r, c in zip(*linear_sum_assignment(cost)):
+        for r, c in zip(*linear_sum_assignment(cost), strict=True):
             if cost[r, c] <= self.GATE_M:
                 tv = view.vehicles[c]
                 extra[r + 1, 0] = 1.0

@@ -16,7 +16,6 @@ the participant saw. Headless: ``SDL_VIDEODRIVER=offscreen``.
 from __future__ import annotations
 
 import math
-import os
 import queue
 import sys
 import threading
@@ -27,10 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import gymnasium as gym
 import numpy as np
+import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
-from dt_highway.config import ConfigError, load_config
+from dt_highway.config import ConfigError, DTConfig, load_config
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
+from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 from dt_highway.overlay import draw_overlay
 
 CONDITIONS = ("baseline", "adas")
@@ -126,7 +128,8 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     cv2.rectangle(out, (pad // 2, pad // 2), (pad + cw + pad // 2, pad + ch + pad // 2), (0, 0, 0), -1)
     _text(out, hud.condition.upper(), (pad, pad + ch), 0.9 * s, (255, 230, 120), thick=t1, shadow=False)
     if hud.paused:
-        _text(out, "PAUSED (P to go on)", (w // 2 - int(250 * s), h // 2), 1.4 * s, (255, 230, 120), thick=max(1, round(3 * s)))
+        _text(out, "PAUSED (P to go on)", (w // 2 - int(250 * s), h // 2), 1.4 * s, (255, 230, 120),
+              thick=max(1, round(3 * s)))
     return out
 
 
@@ -180,24 +183,20 @@ class DriveOptions:
     steering: bool = False
 
 
-def _show(screen: Any, img: np.ndarray, on_frame: Callable[[np.ndarray], None] | None = None) -> None:
+def _show(screen: pygame.Surface, img: np.ndarray, on_frame: Callable[[np.ndarray], None] | None = None) -> None:
     """Put ``img`` on the window."""
-    import pygame
-
     screen.blit(pygame.image.frombuffer(np.ascontiguousarray(img).tobytes(), screen.get_size(), "RGB"), (0, 0))
     pygame.display.flip()
     if on_frame is not None:
         on_frame(img)
 
 
-def _wait_key(screen: Any, clock: Any, img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None,
-              on_frame: Callable[[np.ndarray], None] | None = None) -> int | None:
+def _wait_key(screen: pygame.Surface, clock: pygame.time.Clock, img: np.ndarray, keys: tuple[int, ...],
+              seconds: float | None = None, on_frame: Callable[[np.ndarray], None] | None = None) -> int | None:
     """Show ``img`` until one of ``keys`` (any key when empty) is pressed or ``seconds`` pass.
 
     :return: the key pressed (Esc when the window is closed), ``None`` after ``seconds``
     """
-    import pygame
-
     _show(screen, img, on_frame)
     t_end = None if seconds is None else time.monotonic() + seconds
     while t_end is None or time.monotonic() < t_end:
@@ -217,9 +216,6 @@ def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: fl
     :param timeout_s: give up waiting after this long (``None``: wait for Enter)
     :return: ``False`` when the participant pressed Esc or closed the window
     """
-    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-    import pygame
-
     pygame.display.init()
     try:
         screen = pygame.display.set_mode(size)
@@ -258,10 +254,8 @@ class _Trial:
     posts key events.
     """
 
-    def __init__(self, env: Any, log: Any, opts: DriveOptions, label: str, info: dict[str, Any],
+    def __init__(self, env: Any, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
                  shots_dir: Path) -> None:
-        from dt_highway.metrics.trial_log import TrialRecorder
-
         self.env, self.u, self.log, self.opts, self.label = env, env.unwrapped, log, opts, label
         self.cfg_fusion = self.u.dt_config.fusion.enabled
         self.duration = self.u.dt_config.highway.duration
@@ -396,6 +390,140 @@ class _Trial:
             self.done = True
 
 
+@dataclass
+class _Window:
+    """The trial's pygame window; every frame shown on it also goes to ``on_frame``."""
+
+    screen: pygame.Surface
+    clock: pygame.time.Clock
+    size: tuple[int, int]
+    on_frame: Callable[[np.ndarray], None] | None = None
+
+    @classmethod
+    def open(cls, size: tuple[int, int], caption: str,
+             on_frame: Callable[[np.ndarray], None] | None = None) -> _Window:
+        """Open the window (pygame's display only: text is drawn with OpenCV, no sound)."""
+        pygame.display.init()
+        screen = pygame.display.set_mode(size)
+        pygame.display.set_caption(caption)
+        return cls(screen, pygame.time.Clock(), size, on_frame)
+
+    def show(self, img: np.ndarray) -> None:
+        _show(self.screen, img, self.on_frame)
+
+    def wait_key(self, img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None) -> int | None:
+        return _wait_key(self.screen, self.clock, img, keys, seconds, self.on_frame)
+
+
+def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
+    """The trial's configuration, with one decision per simulation step.
+
+    :return: the configuration, the ``--set`` strings (``--duration`` among them) and the
+        simulation frequency [Hz]
+    """
+    overrides = list(opts.overrides)
+    if opts.duration_s is not None:
+        overrides.append(f"highway.duration={opts.duration_s}")
+    cfg = load_config(opts.scenario, overrides, drive_config(opts.condition, opts.steering))
+    f_sim = cfg.highway.simulation_frequency
+    cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"],
+                      drive_config(opts.condition, opts.steering))
+    return cfg, overrides, f_sim
+
+
+def _trial_meta(opts: DriveOptions, cfg: DTConfig, overrides: list[str], f_sim: float) -> dict[str, Any]:
+    """The trial log's metadata (as a scripted trial's, the driver being the keyboard)."""
+    return {"driver": "keyboard", "driver_file": None,
+            "driver_params": {"keys_from": opts.keys_from is not None, "steering": opts.steering},
+            "participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
+            "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
+            "config": cfg.to_dict(), "simulation_frequency_hz": f_sim}
+
+
+def _start_screens(win: _Window, label: str) -> bool:
+    """The keys, until Enter, then a count-down.
+
+    :return: ``False`` when the participant pressed Esc (or closed the window) instead
+    """
+    legend = [f"{k:14s} {v}" for k, v in LEGEND]
+    if win.wait_key(card(win.size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
+                    (pygame.K_RETURN, pygame.K_KP_ENTER, pygame.K_ESCAPE)) == pygame.K_ESCAPE:
+        return False
+    for n in (3, 2, 1):
+        win.wait_key(card(win.size, str(n), ["get ready"]), (), 1.0)
+    return True
+
+
+def _pass_events(trial: _Trial, names: dict[int, str], scripted: bool) -> None:
+    """Hand the window's key presses and releases to the simulation (not when a script drives)."""
+    for ev in pygame.event.get():
+        if ev.type == pygame.QUIT:
+            trial.stop("window closed")
+        elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
+            trial.keys_in.put((ev.type == pygame.KEYDOWN, names[ev.key]))
+
+
+def _window_frame(trial: _Trial, snap: _Snapshot, size: tuple[int, int]) -> np.ndarray:
+    """The picture of a step, with the pause and the question whether to quit."""
+    img = compose_frame(snap.rgb, snap.marks, replace(snap.hud, paused=trial.paused), snap.minimap)
+    if trial.confirm_quit:
+        _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
+              max(size[1] / 720.0, 0.35), (255, 230, 120), thick=2)
+    return img
+
+
+def _window_loop(win: _Window, trial: _Trial, sim: threading.Thread, fps: int, scripted: bool) -> list[float]:
+    """Redraw the latest simulation step at up to ``fps`` frames per second until the trial is
+    over and its last step shown (or the simulation failed).
+
+    :return: each frame's work [ms]
+    """
+    names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
+    frame_ms: list[float] = []
+    shown_steps = -1
+    composed: tuple[tuple[int, bool, bool], np.ndarray] | None = None
+    while True:
+        t0 = time.perf_counter()
+        _pass_events(trial, names, scripted)
+        with trial.lock:
+            snap = trial.snapshot
+        if snap is not None:
+            key = (snap.n_steps, trial.paused, trial.confirm_quit)
+            if composed is None or key != composed[0]:  # a step's picture is composed once, shown every frame
+                composed = key, _window_frame(trial, snap, win.size)
+            win.show(composed[1])
+            frame_ms.append((time.perf_counter() - t0) * 1e3)
+            shown_steps = snap.n_steps
+        if trial.done and not sim.is_alive() and (shown_steps == trial.n_steps or trial.error is not None):
+            return frame_ms
+        win.clock.tick(fps)
+
+
+def _drive(win: _Window, env: Any, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
+           shots_dir: Path) -> tuple[_Trial, list[float], float]:
+    """The trial itself: the simulation in its own thread, the window in this one.
+
+    :return: the trial, each frame's work [ms] and the trial's wall time [s]
+    :raises BaseException: what failed in the simulation (the log is then closed as aborted)
+    """
+    trial = _Trial(env, log, opts, label, info, shots_dir)
+    sim = threading.Thread(target=trial.run, name="dt-highway-sim", daemon=True)
+    old_switch = sys.getswitchinterval()
+    sys.setswitchinterval(0.0005)  # the window gets the interpreter back quickly from the simulation
+    sim.start()
+    loop_t0 = time.perf_counter()
+    frame_ms = _window_loop(win, trial, sim, opts.fps, opts.keys_from is not None)
+    sim.join()
+    loop_wall_s = time.perf_counter() - loop_t0
+    sys.setswitchinterval(old_switch)
+    if trial.error is not None:
+        raise trial.error
+    log.meta["end_reason"] = trial.end_reason
+    if trial.status != "completed":
+        log.close(trial.status, trial.end_reason)
+    return trial, frame_ms, loop_wall_s
+
+
 def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None = None) -> dict[str, Any]:
     """Run one keyboard trial in a pygame window and log it.
 
@@ -410,107 +538,36 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         events, composing and showing the picture; not the wait for the next frame) [ms],
         ``size_px``, ``trial_wall_s`` and ``trial_sim_s`` (wall and simulated time of the trial [s])
     """
-    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-    import gymnasium as gym
-    import pygame
-
-    from dt_highway.metrics.trial_log import TrialWriter
-
-    overrides = list(opts.overrides)
-    if opts.duration_s is not None:
-        overrides.append(f"highway.duration={opts.duration_s}")
-    cfg = load_config(opts.scenario, overrides, drive_config(opts.condition, opts.steering))
-    f_sim = cfg.highway.simulation_frequency
-    cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"],
-                      drive_config(opts.condition, opts.steering))
+    cfg, overrides, f_sim = _trial_config(opts)
     directory = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
     shots_dir = opts.screenshots or directory / "screenshots"
     scripted = opts.keys_from is not None
     label = "practice" if opts.practice else opts.condition
+    caption = f"dt-highway: {opts.participant} {label}"
 
     env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
     size = (cfg.camera.width_px, cfg.camera.height_px)
-    pygame.display.init()  # display only: text is drawn with OpenCV, no sound
-    screen = pygame.display.set_mode(size)
-    pygame.display.set_caption(f"dt-highway: {opts.participant} {label}")
-    clock = pygame.time.Clock()
-
-    def show(img: np.ndarray) -> None:
-        _show(screen, img, on_frame)
-
-    def wait_key(img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None) -> int | None:
-        return _wait_key(screen, clock, img, keys, seconds, on_frame)
-
-    meta = {"driver": "keyboard", "driver_file": None,
-            "driver_params": {"keys_from": bool(scripted), "steering": opts.steering},
-            "participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
-            "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
-            "config": cfg.to_dict(), "simulation_frequency_hz": f_sim}
-    frames = 0
-    frame_ms: list[float] = []
-    names = {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
+    win = _Window.open(size, caption, on_frame)
+    meta = _trial_meta(opts, cfg, overrides, f_sim)
     old_switch = sys.getswitchinterval()
     try:
         # the traffic and the twin's listening time are prepared while the participant reads the keys
         if not scripted:
-            show(card(size, "Preparing the trial...", []))
+            win.show(card(size, "Preparing the trial...", []))
         _, info = env.reset(seed=opts.seed)
         env.render()  # highway-env's viewer (the mini-map) is made here, on the window's thread
-        pygame.display.set_caption(f"dt-highway: {opts.participant} {label}")  # it renames the window
-        if not scripted:
-            legend = [f"{k:14s} {v}" for k, v in LEGEND]
-            if wait_key(card(size, f"{label.upper()} trial: the keys", [*legend, "", "Press Enter to start"]),
-                        (pygame.K_RETURN, pygame.K_KP_ENTER, pygame.K_ESCAPE)) == pygame.K_ESCAPE:
-                return {"directory": str(directory), "status": "not started", "end_reason": "quit before the start",
-                        "frames": 0, "screenshots": 0, "frame_ms": [], "size_px": list(size)}
-            for n in (3, 2, 1):
-                wait_key(card(size, str(n), ["get ready"]), (), 1.0)
+        pygame.display.set_caption(caption)  # it renames the window
+        if not scripted and not _start_screens(win, label):
+            return {"directory": str(directory), "status": "not started", "end_reason": "quit before the start",
+                    "frames": 0, "screenshots": 0, "frame_ms": [], "size_px": list(size)}
         with TrialWriter(directory, meta) as log:
-            trial = _Trial(env, log, opts, label, info, shots_dir)
-            sim = threading.Thread(target=trial.run, name="dt-highway-sim", daemon=True)
-            sys.setswitchinterval(0.0005)  # the window gets the interpreter back quickly from the simulation
-            sim.start()
-            loop_t0 = time.perf_counter()
-            shown_steps = -1
-            composed_key: tuple[int, bool, bool] | None = None
-            while True:
-                t0 = time.perf_counter()
-                for ev in pygame.event.get():
-                    if ev.type == pygame.QUIT:
-                        trial.stop("window closed")
-                    elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
-                        trial.keys_in.put((ev.type == pygame.KEYDOWN, names[ev.key]))
-                with trial.lock:
-                    snap = trial.snapshot
-                if snap is not None:
-                    key = (snap.n_steps, trial.paused, trial.confirm_quit)
-                    if key != composed_key:  # a step's picture is composed once, shown every frame
-                        img = compose_frame(snap.rgb, snap.marks, replace(snap.hud, paused=trial.paused), snap.minimap)
-                        if trial.confirm_quit:
-                            _text(img, "Quit the trial? Esc: quit, any other key: go on", (20, size[1] // 2 + 40),
-                                  max(size[1] / 720.0, 0.35), (255, 230, 120), thick=2)
-                        composed_key = key
-                    show(img)
-                    frames += 1
-                    frame_ms.append((time.perf_counter() - t0) * 1e3)
-                    shown_steps = snap.n_steps
-                if trial.done and not sim.is_alive() and (shown_steps == trial.n_steps or trial.error is not None):
-                    break
-                clock.tick(opts.fps)
-            sim.join()
-            loop_wall_s = time.perf_counter() - loop_t0
-            sys.setswitchinterval(old_switch)
-            if trial.error is not None:
-                raise trial.error
-            log.meta["end_reason"] = trial.end_reason
-            if trial.status != "completed":
-                log.close(trial.status, trial.end_reason)
+            trial, frame_ms, loop_wall_s = _drive(win, env, log, opts, label, info, shots_dir)
         if not scripted:
-            wait_key(card(size, "Trial saved", [f"{directory}", "", "Press any key"]), (), 10.0)
+            win.wait_key(card(size, "Trial saved", [f"{directory}", "", "Press any key"]), (), 10.0)
     finally:
         sys.setswitchinterval(old_switch)
         env.close()
         pygame.quit()
-    return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason, "frames": frames,
-            "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
+    return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason,
+            "frames": len(frame_ms), "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
             "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim}

@@ -39,7 +39,7 @@ def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -
     :raises ConfigError: if the learned detector's weights file is missing or cannot be read
     """
     if cfg.kind == "learned":
-        from dt_highway.perception.learned.weights import SHIPPED
+        from dt_highway.perception.learned.weights import SHIPPED  # lazy: imports torch (~1 s), for the learned detector only
 
         path = Path(cfg.weights) if cfg.weights else SHIPPED
         stamp = path.stat().st_mtime_ns if path.is_file() else 0
@@ -55,7 +55,7 @@ def make_detector(cfg: DetectorConfig, rng: np.random.Generator | None = None) -
 def _learned(weights: str, stamp: int, min_score: float, scale: str) -> Detector:
     # one network per weights file (and version of it) and process: episodes and envs
     # share it (it has no state)
-    from dt_highway.perception.learned.detector import LearnedDetector
+    from dt_highway.perception.learned.detector import LearnedDetector  # lazy: imports torch (~1 s)
 
     return LearnedDetector(weights, min_score, scale=scale)
 

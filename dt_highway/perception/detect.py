@@ -139,7 +139,7 @@ class SimulatedDetector:
             area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
             cover = inter / np.maximum(np.minimum(area[ii], area[jj]), 1e-9)
             merge = (cover >= s.merge_overlap) & (rng.random(len(ii)) < s.merge_prob)
-            for a, b in zip(ii[merge].tolist(), jj[merge].tolist()):
+            for a, b in zip(ii[merge].tolist(), jj[merge].tolist(), strict=True):
                 parent[root(a)] = root(b)
         groups: dict[int, list[int]] = {}
         for i in range(n):

@@ -240,7 +240,7 @@ class Fusion:
         state = _twin_state(twin)
         finite = np.isfinite(state[:, 0]) & np.isfinite(state[:, 1])
         if not finite.all():  # a vehicle without a position cannot be placed
-            twin = [v for v, ok in zip(twin, finite.tolist()) if ok]
+            twin = [v for v, ok in zip(twin, finite.tolist(), strict=True) if ok]
             state = state[finite]
         boxes = np.asarray(detections.boxes, dtype=float).reshape(-1, 4)
         n_det = len(boxes)
@@ -267,7 +267,7 @@ class Fusion:
         def placements(chosen: list[int], rules: list[str]) -> dict[int, Placement]:
             return {vid: Placement(vid, tuple(box_list[j]), dist_list[j], g, a, rule) if j >= 0
                     else Placement(vid, None, math.nan, g, a, "none")
-                    for vid, j, g, a, rule in zip(ids, chosen, gnss_list, anchor_list, rules)}
+                    for vid, j, g, a, rule in zip(ids, chosen, gnss_list, anchor_list, rules, strict=True)}
 
         if not joint:
             if s.method == "baseline":
@@ -297,7 +297,7 @@ class Fusion:
                   match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
                               expected_boxes=expected, anchor_sigma_px=sigma_px)]
         if s.method == "tracked":
-            for vid, j in zip(ids, chosen):
+            for vid, j in zip(ids, chosen, strict=True):
                 if j >= 0 and track_ids[j] is not None:
                     self._track_of[vid] = track_ids[j]
                 else:

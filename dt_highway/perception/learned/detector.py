@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -79,7 +81,8 @@ class LearnedDetector:
                 raise ValueError("this detector reads depth: give the frames' depth images")
             ds = [cv2.resize(d, size, interpolation=cv2.INTER_NEAREST) if resize else d for d in depths]
             inv = torch.from_numpy(np.stack([inverse_depth(d) for d in ds]))
-        batch = torch.from_numpy(np.ascontiguousarray(np.stack(rgbs)))
+        images = cast("Sequence[np.ndarray]", rgbs)  # a list, or an (N, H, W, 3) array
+        batch = torch.from_numpy(np.ascontiguousarray(np.stack(images)))
         with torch.inference_mode():
             heat, dist = self.model(to_input(batch, arch, inv))
             found = peaks(heat, dist, min_score=self.min_score if min_score is None else min_score)
