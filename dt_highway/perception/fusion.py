@@ -225,6 +225,53 @@ class Fusion:
         box[empty] = np.nan
         return box
 
+    def _candidates(self, boxes: np.ndarray) -> tuple[np.ndarray, list[int | None]]:
+        """The boxes to match: the detections, and with ``tracked`` also the predicted boxes of
+        established tracks that got no detection (missed, merged or hidden).
+
+        :param boxes: this frame's detections ``(N, 4)`` [px]
+        :return: the candidate boxes and, with ``tracked``, the track each came from (``None``:
+            a detection that fed no track); otherwise an empty list
+        """
+        if self.settings.method != "tracked":
+            return boxes, []
+        self.tracker.update(boxes)
+        coast_ids, coast_boxes = self.tracker.coasting()
+        track_ids = self.tracker.detection_tracks + coast_ids.tolist()
+        return np.concatenate([boxes, coast_boxes]), track_ids
+
+    def _continuity_cost(self, ids: list[int], n_boxes: int, n_det: int, track_ids: list[int | None]) -> np.ndarray:
+        """Extra matching cost ``(vehicles, boxes)``: a coasting track (no detection this frame)
+        is less sure than a detected box, and the track a vehicle was on last frame is cheaper."""
+        s = self.settings
+        extra = np.zeros((len(ids), n_boxes))
+        extra[:, n_det:] = s.coast_penalty
+        pos = {tid: j for j, tid in enumerate(track_ids) if tid is not None}
+        for k, vid in enumerate(ids):
+            j = pos.get(self._track_of.get(vid, -2))
+            if j is not None:
+                extra[k, j] -= s.continuity_bonus
+        return extra
+
+    def _outline_boxes(self, anchors: np.ndarray, state: np.ndarray, frame: CameraImage, now_s: float) -> np.ndarray | None:
+        """The expected outline box of each vehicle whose anchor is off the image (beside the
+        ego), which is matched by its outline instead; NaN rows for the others, ``None`` if none is off."""
+        k_int = self.camera.intrinsics
+        off = ~(np.isfinite(anchors).all(axis=1) & (anchors[:, 0] >= -0.5) & (anchors[:, 0] <= k_int.width_px - 0.5)
+                & (anchors[:, 1] >= -0.5) & (anchors[:, 1] <= k_int.height_px - 0.5))
+        if not off.any():
+            return None
+        return np.where(off[:, None], self._expected_boxes(state, frame, now_s), np.nan)
+
+    def _remember_tracks(self, ids: list[int], chosen: list[int], track_ids: list[int | None]) -> None:
+        """Keep the track each vehicle was placed on (for the next frame's continuity bonus)."""
+        for vid, j in zip(ids, chosen, strict=True):
+            tid = track_ids[j] if j >= 0 else None
+            if tid is not None:
+                self._track_of[vid] = tid
+            else:
+                self._track_of.pop(vid, None)
+
     def step(self, frame: CameraImage, detections: Detections, twin: Sequence[TwinVehicleView],
              now_s: float) -> dict[int, Placement]:
         """Place every connected vehicle of the twin view on a box of this frame.
@@ -244,13 +291,7 @@ class Fusion:
             state = state[finite]
         boxes = np.asarray(detections.boxes, dtype=float).reshape(-1, 4)
         n_det = len(boxes)
-        if s.method == "tracked":
-            # candidates: every detection (with the track it fed) and the predicted boxes of
-            # established tracks that got no detection (missed, merged or hidden)
-            self.tracker.update(boxes)
-            coast_ids, coast_boxes = self.tracker.coasting()
-            track_ids = self.tracker.detection_tracks + coast_ids.tolist()
-            boxes = np.concatenate([boxes, coast_boxes])
+        boxes, track_ids = self._candidates(boxes)
         joint = s.method in ("joint", "tracked")
         if not twin:
             return {}
@@ -275,31 +316,12 @@ class Fusion:
             else:
                 chosen_idx, rules = match_each(anchors, boxes, dist, gnss, fallback=s.fallback)
             return placements(chosen_idx.tolist(), rules)
-        extra = None
-        if s.method == "tracked" and len(boxes):
-            extra = np.zeros((len(twin), len(boxes)))
-            # a coasting track (no detection this frame) is less sure than a detected box
-            extra[:, n_det:] = s.coast_penalty
-            pos = {tid: j for j, tid in enumerate(track_ids) if tid is not None}
-            for k, vid in enumerate(ids):
-                j = pos.get(self._track_of.get(vid, -2))
-                if j is not None:
-                    extra[k, j] -= s.continuity_bonus
-        # a vehicle whose anchor is off the image (beside the ego) is matched by its outline
-        k_int = self.camera.intrinsics
-        off = ~(np.isfinite(anchors).all(axis=1) & (anchors[:, 0] >= -0.5) & (anchors[:, 0] <= k_int.width_px - 0.5)
-                & (anchors[:, 1] >= -0.5) & (anchors[:, 1] <= k_int.height_px - 0.5))
-        expected = None
-        if off.any():
-            expected = np.where(off[:, None], self._expected_boxes(state, frame, now_s), np.nan)
-        sigma_px = k_int.fx_px * s.position_sigma_m / np.maximum(gnss, 1.0)
+        extra = self._continuity_cost(ids, len(boxes), n_det, track_ids) if s.method == "tracked" and len(boxes) else None
+        expected = self._outline_boxes(anchors, state, frame, now_s)
+        sigma_px = self.camera.intrinsics.fx_px * s.position_sigma_m / np.maximum(gnss, 1.0)
         chosen = [-1 if j is None else j for j in
                   match_joint(anchors, gnss - s.near_face_m, boxes, dist, s.joint, extra_cost=extra,
                               expected_boxes=expected, anchor_sigma_px=sigma_px)]
         if s.method == "tracked":
-            for vid, j in zip(ids, chosen, strict=True):
-                if j >= 0 and track_ids[j] is not None:
-                    self._track_of[vid] = track_ids[j]
-                else:
-                    self._track_of.pop(vid, None)
+            self._remember_tracks(ids, chosen, track_ids)
         return placements(chosen, ["track" if s.method == "tracked" else "joint"] * len(ids))
