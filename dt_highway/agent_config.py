@@ -239,7 +239,7 @@ class TrainConfig(BaseModel):
     Actions (``action``): the ``DiscreteDriver`` menu
     (:class:`~dt_highway.env.actions.DiscreteDriverAction`): ``pedals``, keep the lane with
     one of ``accels_mps2`` or ask for one lane left or right; ``assisted``
-    (:class:`~dt_highway.env.assisted.AssistedMenu`), choose one of ``speeds_mps`` as desired
+    (:class:`~dt_highway.drivers.menus.AssistedMenu`), choose one of ``speeds_mps`` as desired
     speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap.
     """
 

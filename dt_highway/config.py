@@ -58,6 +58,26 @@ class FrozenSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        """Fields by keyword, or by position in their declared order (as the dataclasses these
+        settings once were). Made from a configuration, a mistake is the tree's one-line
+        :class:`ConfigError`; made by hand, pydantic's ``ValidationError`` (a ``ValueError``)
+        names each bad field.
+
+        :raises pydantic.ValidationError: on an unknown field, a wrong type or an out-of-range value
+        :raises TypeError: on more positional values than fields, or a field given twice
+        """
+        if args:
+            names = list(type(self).model_fields)
+            if len(args) > len(names):
+                raise TypeError(f"{type(self).__name__} takes at most {len(names)} values ({', '.join(names)}); "
+                                f"got {len(args)}")
+            twice = sorted(set(names[: len(args)]) & kwargs.keys())
+            if twice:
+                raise TypeError(f"{type(self).__name__} got {twice[0]!r} both by position and by keyword")
+            kwargs = {**dict(zip(names, args, strict=False)), **kwargs}
+        super().__init__(**kwargs)
+
 
 def section_field(section: type[BaseModel], name: str) -> Any:
     """One field of a config section (its default, range and description), for a settings
@@ -620,9 +640,17 @@ def set_highway_keys(config: DTConfig, values: dict[str, Any]) -> DTConfig:
         key = sections[0]
         raise ConfigError(f"env.unwrapped.config holds highway-env's keys (the 'highway' section) only: set '{key}' "
                           f"with env.unwrapped.configure({{'{key}': {{...}}}}) or gym.make(..., config=...)")
+    fixed = sorted(values.keys() & ENV_SET_HIGHWAY_KEYS)
+    if fixed:
+        raise ConfigError(f"env.unwrapped.config['{fixed[0]}'] is set by dt-highway-v0 itself (its traffic and its one "
+                          f"ego) and cannot be changed: use traffic.fast_road / traffic.driver_types instead")
     tree = config.to_dict()
     tree["highway"].update(copy.deepcopy(values))
     return validate(tree)
+
+
+ENV_SET_HIGHWAY_KEYS = frozenset({"other_vehicles_type", "controlled_vehicles", "neighbour_vehicles_connected_lanes"})
+"""highway-env keys that ``dt-highway-v0`` sets itself (shown in ``env.unwrapped.config``, not configurable)"""
 
 
 # ----------------------------------------------------------------------------- files and --set

@@ -215,3 +215,14 @@ def test_training_files_are_refused_through_the_config_error_path(tree, must_con
     assert "\n" not in str(info.value)
     for part in must_contain:
         assert part in str(info.value)
+
+
+def test_settings_take_positional_values_as_the_dataclasses_did():
+    from dt_highway.camera.render import RenderSettings
+
+    s = RenderSettings(200.0, 1.5)
+    assert (s.max_range_m, s.vehicle_height_m) == (200.0, 1.5)
+    with pytest.raises(TypeError, match="at most"):
+        RenderSettings(1.0, 2.0, 0.5, 4.0, 5.0)
+    with pytest.raises(TypeError, match="both by position and by keyword"):
+        RenderSettings(200.0, max_range_m=100.0)

@@ -251,7 +251,7 @@ def test_editing_env_config_before_reset_is_validated_and_applied(small_config):
     ("banana", 1, "unknown key 'highway.banana' (allowed here: lanes_count"),
     ("lanes_count", 0, "highway.lanes_count = 0 is out of range: must be >= 1"),
     ("duration", "long", "highway.duration = 'long'"),
-    ("other_vehicles_type", "x.Y", "unknown key 'highway.other_vehicles_type'"),  # not configurable here
+    ("other_vehicles_type", "x.Y", "is set by dt-highway-v0 itself"),  # not configurable here
     ("twin", {"enabled": False}, "set 'twin' with env.unwrapped.configure("),
     ("observation", {"type": "Nope"}, "highway.observation.type = 'Nope'"),
 ])

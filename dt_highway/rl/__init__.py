@@ -1,5 +1,6 @@
-"""RL drivers with stable-baselines3: training configs, training, trained policies as drivers,
-and the evaluation of any driver (``dt-highway train``, ``dt-highway evaluate``).
+"""RL drivers with stable-baselines3: training configs and training (``dt-highway train``).
+A trained policy drives as :class:`~dt_highway.drivers.policy.PolicyDriver`; any driver is
+evaluated by :mod:`dt_highway.evaluation.rl` (``dt-highway evaluate``).
 
 Model files (``.zip``) are pickles: load only the ones you trust.
 """
