@@ -104,6 +104,25 @@ ACTION_TYPES = (*HIGHWAY_ENV_ACTION_TYPES, "Driver", "DiscreteDriver")
 """Every ``highway.action.type``: highway-env's and ours (:mod:`dt_highway.env.actions`)"""
 
 
+KINEMATICS_OPTIONS = ("type", "features", "vehicles_count", "features_range", "absolute", "order", "normalize", "clip",
+                      "see_behind", "observe_intentions", "include_obstacles")
+"""Keys of a Kinematics observation table (highway-env 1.12's ``KinematicObservation``; ours adds no key)"""
+
+
+def _check_kinematics_options(table: dict[str, Any]) -> None:
+    """Refuse what highway-env's Kinematics would silently accept or fail on later: an unknown
+    option, ``vehicles_count`` below 1, an ``order`` other than sorted/shuffled."""
+    for key in table:
+        if key not in KINEMATICS_OPTIONS:
+            raise PydanticCustomError("unknown_option", "not a Kinematics option (allowed: {allowed})",
+                                      {"key": key, "got": table[key], "allowed": ", ".join(KINEMATICS_OPTIONS)})
+    count = table.get("vehicles_count", 5)
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise PydanticCustomError("bad_option", "must be a whole number >= 1", {"key": "vehicles_count", "got": count})
+    if table.get("order", "sorted") not in ("sorted", "shuffled"):
+        raise PydanticCustomError("bad_option", "must be 'sorted' or 'shuffled'", {"key": "order", "got": table["order"]})
+
+
 # ----------------------------------------------------------------------------- highway-env
 class HighwayConfig(_Section):
     """highway-env's own keys (see ``highway_env.envs.highway_env.HighwayEnv.default_config``)."""
@@ -147,6 +166,8 @@ class HighwayConfig(_Section):
                 "unknown_type", "not a highway-env or dt-highway {what} type (allowed: {allowed})",
                 {"key": "type", "got": table["type"], "what": info.field_name, "allowed": ", ".join(allowed)},
             )
+        if info.field_name == "observation" and table.get("type", "Kinematics") in ("Kinematics", "OverlayKinematics"):
+            _check_kinematics_options(table)
         return table
 
     @model_validator(mode="after")

@@ -226,3 +226,16 @@ def test_settings_take_positional_values_as_the_dataclasses_did():
         RenderSettings(1.0, 2.0, 0.5, 4.0, 5.0)
     with pytest.raises(TypeError, match="both by position and by keyword"):
         RenderSettings(200.0, max_range_m=100.0)
+
+
+@pytest.mark.parametrize("observation, must_contain", [
+    ({"type": "Kinematics", "vehicles_count": -1}, "highway.observation.vehicles_count = -1: must be a whole number >= 1"),
+    ({"type": "OverlayKinematics", "vehicles_count": 2.5}, "highway.observation.vehicles_count = 2.5"),
+    ({"type": "Kinematics", "bogus": 1}, "highway.observation.bogus = 1: not a Kinematics option (allowed: type, features"),
+    ({"vehicles_count": 3, "order": "random"}, "highway.observation.order = 'random': must be 'sorted' or 'shuffled'"),
+])
+def test_kinematics_options_are_checked_when_configured(observation, must_contain):
+    with pytest.raises(ConfigError) as info:
+        validate({"highway": {"observation": observation}})
+    assert "\n" not in str(info.value) and must_contain in str(info.value), str(info.value)
+    validate({"highway": {"observation": {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled"}}})
