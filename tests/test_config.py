@@ -238,4 +238,5 @@ def test_kinematics_options_are_checked_when_configured(observation, must_contai
     with pytest.raises(ConfigError) as info:
         validate({"highway": {"observation": observation}})
     assert "\n" not in str(info.value) and must_contain in str(info.value), str(info.value)
-    validate({"highway": {"observation": {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled"}}})
+    fine = {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled"}
+    validate({"highway": {"observation": fine}})
