@@ -91,7 +91,7 @@ class RenderSettings(FrozenSettings):
     detail_min_px: float = section_field(CameraConfig, "detail_min_px")
 
 
-@dataclass
+@dataclass(frozen=True)
 class CameraImage:
     """One rendered image, what the camera delivers (see the module docstring for conventions);
     its ground truth is a separate :class:`~dt_highway.camera.truth.CameraTruth`.
@@ -107,12 +107,27 @@ class CameraImage:
     pose: Pose
     time_s: float = math.nan
     _ray_norm: np.ndarray | None = field(default=None, repr=False)
+    """The renderer's ray norms (one read-only array shared by all its images)"""
 
     def range_m(self) -> np.ndarray:
         """Euclidean range image ``float32 (H, W)`` [m]: distance from the camera centre."""
         if self._ray_norm is None:
             raise ValueError("this image has no ray norms (build it with CameraRenderer.render)")
         return self.depth_m * self._ray_norm
+
+    def read_only_copy(self) -> CameraImage:
+        """A copy of this image whose arrays are read-only and shared with nothing: what a
+        driver is given (:func:`~dt_highway.env.senses.perceive`). Writing into it raises
+        ``ValueError``; even with its flags set writeable again it cannot reach this image."""
+        ray = self._ray_norm
+        return CameraImage(_read_only_copy(self.rgb), _read_only_copy(self.depth_m), self.pose, self.time_s,
+                           None if ray is None else _read_only_copy(ray))
+
+
+def _read_only_copy(a: np.ndarray) -> np.ndarray:
+    out = np.array(a, copy=True)
+    out.flags.writeable = False
+    return out
 
 
 # ----------------------------------------------------------------------------- the car model
@@ -394,6 +409,7 @@ class CameraRenderer:
         xn = (cols - k.cx_px) / k.fx_px
         yn = (rows - k.cy_px) / k.fy_px
         self._ray_norm = np.sqrt(1.0 + xn * xn + yn * yn).astype(np.float32)
+        self._ray_norm.flags.writeable = False  # every image of this renderer shares it
         self._kx = max(k.cx_px + 0.5, k.width_px - 0.5 - k.cx_px) / k.fx_px
         self._ky = max(k.cy_px + 0.5, k.height_px - 0.5 - k.cy_px) / k.fy_px
         m = self.model

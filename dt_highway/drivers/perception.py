@@ -6,8 +6,11 @@ This is the drivers' side of the ground-truth wall. A driver is never handed the
 the env side (:mod:`dt_highway.env.senses`, the one sanctioned read of the simulator's
 geometry, and :class:`~dt_highway.env.seat.DriverSeat`) fills a :class:`Perception` with what
 a person in the driver's seat could see, and only the parts the driver's request asks for.
-Nothing in this package imports the env, the world, the camera's truth or the evaluation
-(``tests/test_wall.py`` checks it).
+A perception holds nothing but plain data and the records below; its arrays (the camera image,
+a policy's observation) are read-only copies, so a driver cannot write into the env through them.
+Nothing in this package imports the env, the world, the camera's truth, the trial log or the
+evaluation, by module or by a name re-exported elsewhere, nor names the attributes and keys that
+reach the truth (``tests/test_wall.py`` checks all of it, and walks real perceptions).
 """
 
 from __future__ import annotations
@@ -145,8 +148,9 @@ class Perception:
     :param marks: the overlay's marks as drawn (empty in the baseline condition)
     :param cars_under_marks: ids of the cars a person sees a mark on (the car whose outline
         fits the mark's box, right or wrong)
-    :param image: the camera image (``None`` unless asked for and the camera is on)
-    :param observation: a trained policy's observation (``None`` for other drivers)
+    :param image: the camera image (``None`` unless asked for and the camera is on; its arrays
+        are read-only copies)
+    :param observation: a trained policy's observation (``None`` for other drivers; read-only copies)
     """
 
     time_s: float

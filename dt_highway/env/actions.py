@@ -10,7 +10,7 @@ through it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -22,6 +22,9 @@ from highway_env.vehicle.kinematics import Vehicle
 from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2
 from dt_highway.drivers.menus import DEFAULT_DISCRETE_ACCELS_MPS2, DiscreteMenu
 from dt_highway.env.senses import perceive
+
+if TYPE_CHECKING:
+    from dt_highway.env.core import DTHighwayEnv
 
 
 class DrivenVehicle(ControlledVehicle):
@@ -89,7 +92,7 @@ class DriverAction(ActionType):
     :param steering_max_rad: steering angle at full lock [rad]
     """
 
-    def __init__(self, env: Any, accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
+    def __init__(self, env: DTHighwayEnv, accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
                  steering: bool = False, steering_max_rad: float = 0.05, **kwargs: Any) -> None:
         if kwargs:
             raise ValueError(f"the Driver action takes accel_min_mps2, accel_max_mps2, steering and steering_max_rad "
@@ -147,7 +150,7 @@ class DiscreteDriverAction(DriverAction):
     :param speeds_mps: assisted: the desired speeds to choose from [m/s]
     """
 
-    def __init__(self, env: Any, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
+    def __init__(self, env: DTHighwayEnv, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
                  speeds_mps: Any = None, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if self.steering:

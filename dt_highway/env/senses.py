@@ -6,24 +6,30 @@ image, on whichever car the marker's box sits. These are read here from the simu
 way eyes would read them, and nowhere else; :func:`perceive` puts what a driver asked for
 (its :class:`~dt_highway.drivers.perception.SenseRequest`) into the typed
 :class:`~dt_highway.drivers.perception.Perception` it acts on. Drivers get what this module
-gives them, never the env, its ``info`` or a truth object.
+gives them, never the env, its ``info`` or a truth object, and no array of the env's: the
+camera image and a policy's observation are handed out as read-only copies (a driver that
+writes into them gets ``ValueError``, and could not reach the env's frame even by making
+them writeable again).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dt_highway.drivers.perception import Mark, OwnState, Perception, Seen, SenseRequest, Surroundings
 from dt_highway.perception.detect import iou
 
+if TYPE_CHECKING:
+    from dt_highway.env.core import DTHighwayEnv
+
 ENTERING_RANGE_M = 80.0
 """How far ahead a car entering the ego's lane is looked for [m]"""
 
 
-def look_around(env: Any, range_m: float = 150.0) -> Surroundings:
+def look_around(env: DTHighwayEnv, range_m: float = 150.0) -> Surroundings:
     """The nearest vehicles ahead and behind in the ego's lane and the lanes beside it.
 
     :param env: the dt-highway env (unwrapped)
@@ -55,7 +61,7 @@ def look_around(env: Any, range_m: float = 150.0) -> Surroundings:
     return Surroundings(float(env.sim_time_s), float(ego.speed), lane, n_lanes, ahead, behind, x_of)
 
 
-def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set[int]:
+def marked_vehicles(env: DTHighwayEnv, info: dict[str, Any], min_iou: float = 0.3) -> set[int]:
     """The cars the overlay marks, as a person looking at the screen sees them: for each
     overlay box, the vehicle whose visible outline in the camera image fits it best.
 
@@ -68,7 +74,7 @@ def marked_vehicles(env: Any, info: dict[str, Any], min_iou: float = 0.3) -> set
     return cars_under_marks(env, adas.get("overlay") if adas else None, min_iou)
 
 
-def cars_under_marks(env: Any, overlay: Sequence[Mapping[str, Any]] | None, min_iou: float = 0.3) -> set[int]:
+def cars_under_marks(env: DTHighwayEnv, overlay: Sequence[Mapping[str, Any]] | None, min_iou: float = 0.3) -> set[int]:
     """For each overlay item, the vehicle whose visible outline in this step's camera image
     fits the item's box best (IoU >= ``min_iou``): which car a person sees the marker on,
     right or wrong.
@@ -94,7 +100,7 @@ def cars_under_marks(env: Any, overlay: Sequence[Mapping[str, Any]] | None, min_
     return marked
 
 
-def cars_entering(env: Any, range_m: float = ENTERING_RANGE_M) -> Seen | None:
+def cars_entering(env: DTHighwayEnv, range_m: float = ENTERING_RANGE_M) -> Seen | None:
     """The nearest car ahead whose body already reaches into the ego's lane, its centre in
     that lane or still in the next one (a car changing into the lane, as a driver sees it
     drift in).
@@ -122,7 +128,7 @@ def cars_entering(env: Any, range_m: float = ENTERING_RANGE_M) -> Seen | None:
     return best
 
 
-def own_state(env: Any) -> OwnState:
+def own_state(env: DTHighwayEnv) -> OwnState:
     """The ego's own state, as its driver knows it (speedometer, lane, a crash).
 
     :param env: the dt-highway env (unwrapped)
@@ -142,7 +148,24 @@ def _mark(item: Mapping[str, Any]) -> Mark:
                 None if dist is None else float(dist))
 
 
-def perceive(env: Any, request: SenseRequest, observation: Any = None,
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A copy of ``a`` that cannot be written (a driver's copy: it shares no memory with the env)."""
+    out = np.array(a, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+def _driver_observation(observation: np.ndarray | Mapping[str, np.ndarray] | None
+                        ) -> np.ndarray | dict[str, np.ndarray] | None:
+    """A policy's observation as its driver is given it: read-only copies of its arrays."""
+    if observation is None:
+        return None
+    if isinstance(observation, Mapping):
+        return {str(k): _read_only(np.asarray(v)) for k, v in observation.items()}
+    return _read_only(np.asarray(observation))
+
+
+def perceive(env: DTHighwayEnv, request: SenseRequest, observation: np.ndarray | Mapping[str, np.ndarray] | None = None,
              overlay: Sequence[Mapping[str, Any]] | None = None) -> Perception:
     """What a driver perceives now, for what it asked: the one place a
     :class:`~dt_highway.drivers.perception.Perception` is made from the env.
@@ -150,10 +173,10 @@ def perceive(env: Any, request: SenseRequest, observation: Any = None,
     :param env: the dt-highway env (unwrapped)
     :param request: what the driver looks at
     :param observation: a policy's observation of this step (made by its
-        :class:`~dt_highway.env.seat.DriverSeat`), passed through
+        :class:`~dt_highway.env.seat.DriverSeat`), passed on as read-only copies
     :param overlay: the overlay items to see instead of this step's ADAS output (tests,
         replays); ``None``: the env's own (none in the baseline condition)
-    :return: the perception (only the requested parts filled)
+    :return: the perception (only the requested parts filled; its arrays are read-only copies)
     """
     marks: tuple[Mark, ...] = ()
     under: frozenset[int] = frozenset()
@@ -170,6 +193,6 @@ def perceive(env: Any, request: SenseRequest, observation: Any = None,
         entering=cars_entering(env) if request.entering else None,
         marks=marks,
         cars_under_marks=under,
-        image=env.camera_image() if request.image and env.camera is not None else None,
-        observation=observation,
+        image=env.camera_image().read_only_copy() if request.image and env.camera is not None else None,
+        observation=_driver_observation(observation),
     )

@@ -23,15 +23,17 @@ from dt_highway.env.seat import DriverSeat
 from dt_highway.metrics.safety import trial_metrics
 
 
-def run_episode(driver: Driver, env: Any, seed: int) -> dict[str, Any]:
+def run_episode(driver: Driver, env: gym.Env, seed: int) -> dict[str, Any]:
     """One episode of ``driver`` in ``env`` from ``reset(seed)``; the driver acts on what its
     seat perceives (:class:`~dt_highway.env.seat.DriverSeat`), ``info`` is for the metrics.
 
+    :param env: a ``dt-highway-v0`` env, wrapped (``gym.make``) or not
     :return: ``return``, ``steps``, ``collision`` and the trial metrics (units in the names)
+    :raises TypeError: if ``env`` is not a ``dt-highway-v0`` env
     """
-    u = env.unwrapped
     _, info = env.reset(seed=seed)
-    seat = DriverSeat(u, driver.senses)
+    seat = DriverSeat(env, driver.senses)
+    u = seat.env
     driver.reset(seed)
     samples, cut_ins = list(info["safety"]["samples"]), list(info["safety"]["cut_ins"])
     total, steps = 0.0, 0

@@ -31,6 +31,7 @@ import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
 from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
 from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 from dt_highway.overlay import draw_overlay
@@ -254,9 +255,12 @@ class _Trial:
     posts key events.
     """
 
-    def __init__(self, env: Any, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
+    def __init__(self, env: gym.Env, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
                  shots_dir: Path) -> None:
-        self.env, self.u, self.log, self.opts, self.label = env, env.unwrapped, log, opts, label
+        u = env.unwrapped
+        if not isinstance(u, DTHighwayEnv):
+            raise TypeError(f"a keyboard trial drives a dt-highway-v0 env (got {type(u).__name__})")
+        self.env, self.u, self.log, self.opts, self.label = env, u, log, opts, label
         self.cfg_fusion = self.u.dt_config.fusion.enabled
         self.duration = self.u.dt_config.highway.duration
         self.dt = 1.0 / self.u.dt_config.highway.simulation_frequency
@@ -332,7 +336,9 @@ class _Trial:
                   len(u.road.network.graph[ego.lane_index[0]][ego.lane_index[1]]), self.duration - self.t_sim,
                   self.label, self.paused)
         marks = (self.info.get("adas") or {}).get("overlay") if self.cfg_fusion else None
-        snap = _Snapshot(u.camera_image().rgb, marks, hud, self.env.render() if self.show_map else None, self.n_steps)
+        minimap = self.env.render() if self.show_map else None  # rgb_array mode: an image
+        assert minimap is None or isinstance(minimap, np.ndarray)
+        snap = _Snapshot(u.camera_image().rgb, marks, hud, minimap, self.n_steps)
         with self.lock:
             self.snapshot = snap
         if self.t_sim + 1e-9 >= self.next_shot:  # what the window shows of this step, saved
@@ -499,7 +505,7 @@ def _window_loop(win: _Window, trial: _Trial, sim: threading.Thread, fps: int, s
         win.clock.tick(fps)
 
 
-def _drive(win: _Window, env: Any, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
+def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, label: str, info: dict[str, Any],
            shots_dir: Path) -> tuple[_Trial, list[float], float]:
     """The trial itself: the simulation in its own thread, the window in this one.
 
