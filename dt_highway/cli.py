@@ -24,7 +24,7 @@ from tqdm import tqdm
 from dt_highway._version import __version__
 from dt_highway.bench import bench_camera, bench_detector, bench_drive, bench_fusion, bench_memory, bench_sim
 from dt_highway.conditions import condition_config
-from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config, merge
+from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge
 from dt_highway.drivers import load_driver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.frames import record_frames
@@ -110,6 +110,8 @@ def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]
 
 # ----------------------------------------------------------------------------- twin-eval
 def cmd_twin_eval(args: argparse.Namespace) -> int:
+    if args.population is not None:  # before the --set overrides: a --set of the same key wins
+        args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
     steps = args.episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
@@ -123,6 +125,12 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
             f"median time to tag {r['median_time_to_tag_s']:.1f} s"
             f"  (aggressive {r['n_aggressive']}, normal {r['n_normal']}, episodes {r['episodes']}, seed {r['seed']})"
         )
+        if "auc_label" in r:
+            print(
+                f"continuum: AUC vs label {r['auc_label']:.3f}, vs latent above median "
+                f"{r['auc_latent_above_median']:.3f}, Spearman vs latent {r['spearman_latent']:.3f}; "
+                f"precision {r['precision_at_recall_0_80']:.3f} at recall >= 0.80"
+            )
     if args.out:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -647,6 +655,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode (default 0)")
     p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"), default=30.0,
                    help="judge only drivers the twin observed this long [s] (default 30)")
+    p.add_argument("--population", choices=POPULATIONS,
+                   help="driver population, shortcut for --set traffic.population=...; continuum adds the ROC AUCs "
+                   "and the precision at recall >= 0.80 (default: the configuration's, two_class)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -31,9 +31,11 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    SerializerFunctionWrapHandler,
     ValidationError,
     ValidationInfo,
     field_validator,
+    model_serializer,
     model_validator,
 )
 from pydantic_core import PydanticCustomError
@@ -230,12 +232,157 @@ def _aggressive_driver() -> DriverParams:
     )
 
 
-class TrafficConfig(_Section):
-    """NPC population: driver types, aggressive behaviour, spawning and recycling."""
+_CORR_Z = "correlation of the copula variable with the latent aggressiveness z [-]"
+_LOW = "smallest value drawn (draws below are clipped) [the parameter's unit]"
+_HIGH = "largest value drawn (draws above are clipped) [the parameter's unit]"
 
-    aggressive_fraction: float = Field(0.2, ge=0, le=1, description="share of aggressive drivers [-]")
+
+def _check_order(low: float, centre_name: str, centre: float, high: float) -> None:
+    if not low <= centre <= high:
+        raise ValueError(f"low <= {centre_name} <= high is required (got {low}, {centre}, {high})")
+
+
+class NormalTrait(_Section):
+    """One driver parameter of the continuum population (:mod:`dt_highway.world.continuum`),
+    drawn as ``mean + sd u`` clipped to ``[low, high]``, where ``u = corr_z z + sqrt(1 - corr_z^2) e``
+    is a standard normal copula variable (``z`` the latent aggressiveness, ``e`` independent noise).
+    ``mean``, ``sd``, ``low`` and ``high`` are in the parameter's unit (its name's)."""
+
+    mean: float = Field(description="mean (and median) before clipping [the parameter's unit]")
+    sd: float = Field(ge=0, description="standard deviation before clipping [the parameter's unit]")
+    low: float = Field(description=_LOW)
+    high: float = Field(description=_HIGH)
+    corr_z: float = Field(ge=-1, le=1, description=_CORR_Z)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> NormalTrait:
+        _check_order(self.low, "mean", self.mean, self.high)
+        return self
+
+
+class LogNormalTrait(_Section):
+    """One positive driver parameter of the continuum population, drawn as ``median exp(log_sd u)``
+    clipped to ``[low, high]`` (``u`` as in :class:`NormalTrait`). ``median``, ``low`` and ``high``
+    are in the parameter's unit (its name's)."""
+
+    median: float = Field(gt=0, description="median before clipping [the parameter's unit]")
+    log_sd: float = Field(ge=0, le=3, description="standard deviation of the natural logarithm [-]")
+    low: float = Field(description=_LOW)
+    high: float = Field(description=_HIGH)
+    corr_z: float = Field(ge=-1, le=1, description=_CORR_Z)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> LogNormalTrait:
+        _check_order(self.low, "median", self.median, self.high)
+        return self
+
+
+CONTINUUM_LIMITS: dict[str, tuple[float, float]] = {
+    "desired_speed_mps": (1.0, 40.0),
+    "time_headway_s": (0.1, 5.0),
+    "min_gap_m": (0.0, 50.0),
+    "comfort_acc_mps2": (0.1, 10.0),
+    "comfort_dec_mps2": (0.1, 10.0),
+    "politeness": (0.0, 1.0),
+    "lane_change_min_gain_mps2": (0.0, 5.0),
+    "max_braking_imposed_mps2": (0.1, 10.0),
+    "lane_change_delay_s": (0.05, 10.0),
+    "max_lateral_speed_mps": (0.1, 8.0),
+    "cut_in_rate_per_min": (0.0, 60.0),
+}
+"""Physically meaningful ``[low, high]`` of each continuum parameter (as :class:`DriverParams`' ranges)"""
+
+
+class ContinuumConfig(_Section):
+    """The continuum population's distributions (``traffic.population = "continuum"``).
+
+    Each parameter's median, spread, clipping range and correlation with the latent
+    aggressiveness; where the numbers come from is in :mod:`dt_highway.world.continuum`.
+    """
+
+    desired_speed_mps: NormalTrait = Field(default_factory=lambda: NormalTrait(
+        mean=26.0, sd=2.5, low=20.0, high=34.0, corr_z=0.5))
+    time_headway_s: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=1.3, log_sd=0.3, low=0.5, high=2.5, corr_z=-0.6))
+    min_gap_m: NormalTrait = Field(default_factory=lambda: NormalTrait(
+        mean=9.0, sd=1.0, low=6.0, high=12.0, corr_z=-0.4))
+    comfort_acc_mps2: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=3.0, log_sd=0.2, low=1.5, high=5.0, corr_z=0.4))
+    comfort_dec_mps2: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=5.0, log_sd=0.15, low=3.5, high=8.0, corr_z=0.4))
+    politeness: NormalTrait = Field(default_factory=lambda: NormalTrait(
+        mean=0.35, sd=0.2, low=0.0, high=1.0, corr_z=-0.6))
+    lane_change_min_gain_mps2: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=0.15, log_sd=0.5, low=0.02, high=0.6, corr_z=-0.5))
+    max_braking_imposed_mps2: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=3.0, log_sd=0.35, low=1.5, high=7.0, corr_z=0.6))
+    lane_change_delay_s: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=0.8, log_sd=0.4, low=0.2, high=2.5, corr_z=-0.5))
+    max_lateral_speed_mps: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=0.8, log_sd=0.5, low=0.3, high=3.5, corr_z=0.8))
+    cut_in_rate_per_min: LogNormalTrait = Field(default_factory=lambda: LogNormalTrait(
+        median=0.5, log_sd=1.0, low=0.0, high=10.0, corr_z=0.8))
+    lateral_settle_m: float = Field(
+        1.0, gt=0, le=4, description="a lane change leaves its lateral speed limit this far from the new lane's "
+        "centre and settles exponentially, time constant lateral_settle_m / max_lateral_speed_mps [m]")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _partial_traits(cls, data: Any) -> Any:
+        """A parameter's table may give some keys only (``--set traffic.continuum.politeness.mean=0.2``):
+        the others keep that parameter's defaults."""
+        if not isinstance(data, dict):
+            return data
+        out = dict(data)
+        for name in CONTINUUM_LIMITS:
+            given = out.get(name)
+            factory = cls.model_fields[name].default_factory
+            if isinstance(given, dict) and factory is not None:
+                out[name] = {**factory().model_dump(), **given}  # type: ignore[call-arg]
+        return out
+
+    @model_validator(mode="after")
+    def _physical(self) -> ContinuumConfig:
+        for name, (lo, hi) in CONTINUUM_LIMITS.items():
+            trait: NormalTrait | LogNormalTrait = getattr(self, name)
+            if trait.low < lo:
+                raise PydanticCustomError("out_of_range", "must be >= {bound}",
+                                          {"key": f"{name}.low", "got": trait.low, "bound": lo})
+            if trait.high > hi:
+                raise PydanticCustomError("out_of_range", "must be <= {bound}",
+                                          {"key": f"{name}.high", "got": trait.high, "bound": hi})
+        return self
+
+    def traits(self) -> dict[str, NormalTrait | LogNormalTrait]:
+        """:return: the parameters' distributions by name, in the order they are drawn"""
+        return {name: getattr(self, name) for name in CONTINUUM_LIMITS}
+
+
+POPULATIONS = ("two_class", "continuum")
+"""``traffic.population``: two driver classes with fixed parameters, or a continuum of drivers"""
+
+
+class TrafficConfig(_Section):
+    """NPC population: driver types, aggressive behaviour, spawning and recycling.
+
+    ``population = "two_class"`` (the default) is the world of two driver types with the fixed
+    ``normal`` / ``aggressive`` parameters; ``"continuum"`` draws every driver's parameters from
+    the ``continuum`` section's distributions, correlated through a latent aggressiveness, and the
+    top ``aggressive_fraction`` by that score are the aggressive ones (:mod:`dt_highway.world.continuum`).
+    The ``population`` and ``continuum`` keys appear in a dumped configuration only when one of
+    them differs from its default, so that files written before they existed stay byte-identical.
+    """
+
+    population: Literal["two_class", "continuum"] = Field(
+        "two_class", description="two_class: the normal / aggressive presets; continuum: drivers drawn from "
+        "the continuum section's distributions with a latent aggressiveness"
+    )
+    aggressive_fraction: float = Field(
+        0.2, ge=0, le=1, description="share of aggressive drivers (continuum: the top share by latent score) [-]"
+    )
     cut_in_rate_per_min: float = Field(
-        4.0, ge=0, description="how often an aggressive driver tries a cut-in (or, with no victim, a lane hop) [1/min]"
+        4.0, ge=0, description="how often an aggressive driver tries a cut-in (or, with no victim, a lane hop); "
+        "two_class only, the continuum draws continuum.cut_in_rate_per_min per driver [1/min]"
     )
     cut_in_gap_m: tuple[float, float] = Field(
         (4.0, 20.0), description="bumper gap ahead of the victim that a cut-in accepts [m]"
@@ -275,6 +422,15 @@ class TrafficConfig(_Section):
     )
     normal: DriverParams = Field(default_factory=_normal_driver)
     aggressive: DriverParams = Field(default_factory=_aggressive_driver)
+    continuum: ContinuumConfig = Field(default_factory=ContinuumConfig)
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        out: dict[str, Any] = handler(self)
+        if self.population == "two_class" and self.continuum == _DEFAULT_CONTINUUM:
+            out.pop("population", None)
+            out.pop("continuum", None)
+        return out
 
     @model_validator(mode="after")
     def _gap_range(self) -> TrafficConfig:
@@ -287,6 +443,9 @@ class TrafficConfig(_Section):
                 f"(got {self.spawn_ahead_m} and {self.spawn_behind_m})"
             )
         return self
+
+
+_DEFAULT_CONTINUUM = ContinuumConfig()
 
 
 # ----------------------------------------------------------------------------- twin

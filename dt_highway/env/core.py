@@ -13,7 +13,8 @@ The env subclasses ``highway_env.envs.HighwayEnv``. On top of it:
 
 ``info`` holds ``time_s`` (episode clock [s]), ``ego`` (the ego's state), ``twin`` (the
 view the ego last received; never ground truth), and, under ``ground_truth``, the
-simulator's truth (driver types, positions, cut-ins) for evaluation only.
+simulator's truth (driver types, positions, cut-ins; with ``traffic.population = "continuum"`` also
+each driver's latent ``aggressiveness``) for evaluation only.
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ from dt_highway.world.traffic import (
     DriverPopulation,
     TrafficEvent,
     TrafficManager,
+    aggressiveness,
     driver_type,
     vehicle_id,
 )
@@ -561,6 +563,10 @@ class DTHighwayEnv(HighwayEnv):
             },
             "events": [ev.__dict__.copy() for ev in self._events],
         }
+        if self.dt_config.traffic.population == "continuum":  # the latent score, only where there is one
+            for v in self.road.vehicles:
+                if v is not ego:
+                    info["ground_truth"]["vehicles"][vehicle_id(v)]["aggressiveness"] = aggressiveness(v)
         if self.camera is not None:
             # the camera's ground truth (instance boxes); the images are on camera_image()
             info["ground_truth"]["camera"] = [t.to_dict() for t in self.camera_truth().vehicles.values()]

@@ -11,14 +11,30 @@ median time from the twin's first analysis of the driver (its first fixes, to wi
 tagger update) to its first ``aggressive`` tag, read from the twin's records after the
 last episode (with ``persist_across_episodes`` off, those of the last episode only).
 The ego runs on its IDM autopilot: the twin does not depend on how the ego drives.
+
+With the continuum population (``traffic.population = "continuum"``) the result also ranks the
+judgements (the same pooled ones as precision and recall) by the twin's probability that the
+driver is aggressive (its confidence in the tag it gave, or one minus it), against the truth:
+
+* ``auc_label``: ROC AUC against the label (top ``aggressive_fraction`` by latent score);
+* ``auc_latent_above_median``: ROC AUC against "latent score above the population's median";
+* ``spearman_latent``: Spearman's rank correlation with the latent score itself;
+* ``precision_at_recall_0_80``: the best precision over thresholds on that probability whose recall
+  is at least 0.80 (with the threshold, ``threshold_at_recall_0_80``, and the recall there).
+
+An AUC is the Mann-Whitney ``U / (n1 n2)`` (``scipy.stats.mannwhitneyu``; ties count one half,
+as the trapezoidal ROC area; scikit-learn is not a dependency). With the two-class default the
+result has none of these keys (it stays as it was, byte for byte).
 """
 
 from __future__ import annotations
 
 import statistics
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.env import DTHighwayEnv
@@ -69,9 +85,78 @@ def evaluate_twin(
                 score.judge(population[vid], records.get(vid))
         records, population = _truth_and_tags(env)
         times_to_tag, untagged_aggressive = _times_to_tag(records, population, min_observed_s)
+        latent_median = _latent_median(population)
     finally:
         env.close()
-    return _result(score, times_to_tag, untagged_aggressive, cfg, episodes, seed)
+    result = _result(score, times_to_tag, untagged_aggressive, cfg, episodes, seed)
+    if latent_median is None:
+        return result
+    ranks = _ranking_scores(score.ranked, latent_median)
+    at = list(result).index("episodes")  # beside the other scores
+    items = list(result.items())
+    return dict(items[:at] + list(ranks.items()) + items[at:])
+
+
+def _latent_median(population: DriverPopulation) -> float | None:
+    """:return: the median latent score of the population, ``None`` when it has none (two-class)"""
+    z = [d.aggressiveness for d in population.drivers.values() if d.aggressiveness is not None]
+    return float(np.median(z)) if z else None
+
+
+def auc(scores: np.ndarray, positive: np.ndarray) -> float:
+    """ROC AUC of ``scores`` for the boolean labels ``positive``: the Mann-Whitney ``U / (n1 n2)``
+    (the probability that a positive outscores a negative, ties counted one half).
+
+    :return: the AUC, NaN when either class is empty
+    """
+    from scipy.stats import mannwhitneyu  # lazy: heavy (scipy.stats, ~0.35 s), twin-eval on the continuum only
+
+    pos, neg = scores[positive], scores[~positive]
+    if len(pos) == 0 or len(neg) == 0:
+        return float("nan")
+    return float(mannwhitneyu(pos, neg).statistic) / (len(pos) * len(neg))
+
+
+def precision_at_recall(scores: np.ndarray, positive: np.ndarray, min_recall: float) -> tuple[float, float, float]:
+    """The best precision of the rule ``score >= threshold`` over the thresholds (the distinct scores)
+    whose recall is at least ``min_recall``.
+
+    :return: precision, threshold and recall there (NaNs when there are no positives)
+    """
+    n_pos = int(positive.sum())
+    if n_pos == 0:
+        return float("nan"), float("nan"), float("nan")
+    order = np.argsort(-scores, kind="stable")
+    s, y = scores[order], positive[order]
+    tp, fp = np.cumsum(y), np.cumsum(~y)
+    last = np.r_[s[1:] != s[:-1], True]  # the last of each group of equal scores: a threshold
+    tp, fp, thresholds = tp[last], fp[last], s[last]
+    recall, precision = tp / n_pos, tp / (tp + fp)
+    ok = np.flatnonzero(recall >= min_recall)  # never empty: the lowest threshold has recall 1
+    best = int(ok[np.argmax(precision[ok])])  # the first (highest threshold) of the best
+    return float(precision[best]), float(thresholds[best]), float(recall[best])
+
+
+def _ranking_scores(ranked: list[tuple[float, bool, float]], latent_median: float) -> dict[str, Any]:
+    """The continuum's ranking scores (see the module docstring)."""
+    from scipy.stats import spearmanr  # lazy: heavy (scipy.stats, ~0.35 s), twin-eval on the continuum only
+
+    p = np.array([r[0] for r in ranked], dtype=float)
+    label = np.array([r[1] for r in ranked], dtype=bool)
+    z = np.array([r[2] for r in ranked], dtype=float)
+    precision, threshold, recall = precision_at_recall(p, label, 0.80)
+    rho = float(spearmanr(p, z).statistic) if len(p) >= 2 and np.ptp(p) > 0 else float("nan")
+    return {
+        "population": "continuum",
+        "auc_label": auc(p, label),
+        "auc_latent_above_median": auc(p, z > latent_median),
+        "spearman_latent": rho,
+        "precision_at_recall_0_80": precision,
+        "threshold_at_recall_0_80": threshold,
+        "recall_at_threshold": recall,
+        "latent_median": latent_median,
+        "n_ranked": len(p),
+    }
 
 
 def _run_episode(env: DTHighwayEnv, seed: int | None, cfg: DTConfig,
@@ -116,6 +201,8 @@ class _Score:
     unjudged: int = 0
     all_aggr: int = 0
     all_aggr_tagged: int = 0
+    ranked: list[tuple[float, bool, float]] = field(default_factory=list)
+    """Continuum judgements: (the twin's probability of aggressive, the label, the latent score)"""
 
     def judge(self, driver: Driver, rec: DriverRecord | None) -> None:
         """Count one driver met in an episode: its tag (if the twin has a record) against its type."""
@@ -133,6 +220,9 @@ class _Score:
         self.fp += tagged and not truly
         self.fn += truly and not tagged
         self.tn += not truly and not tagged
+        if driver.aggressiveness is not None:
+            p_aggressive = rec.confidence if tagged else 1.0 - rec.confidence
+            self.ranked.append((p_aggressive, truly, driver.aggressiveness))
 
 
 def _times_to_tag(records: dict[int, DriverRecord], population: DriverPopulation,

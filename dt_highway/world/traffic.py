@@ -11,6 +11,12 @@ simulator knows (the twin must infer it from GNSS fixes).
   **cut-ins**: at a Poisson rate they pick a vehicle in a neighbouring lane that they are
   just ahead of (the ego preferred) and change into its lane with a small gap.
 
+With ``traffic.population = "continuum"`` the drivers are not two classes: each draws its own
+parameters (:class:`~dt_highway.world.continuum.DriverProfile`) from stated distributions
+correlated through a latent aggressiveness, and the aggressive ones are the top share by that
+score (:mod:`dt_highway.world.continuum`). Every driver carries its profile; a vehicle takes its
+gains, lateral speed and cut-in rate from it (in the two-class world, the type's preset values).
+
 Vehicle ids are stable for the whole episode (and, through :class:`DriverPopulation`,
 across the episodes of one env): the ego is 0, NPCs are drivers ``1..population_size``.
 """
@@ -29,6 +35,7 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.config import DriverParams, TrafficConfig
 from dt_highway.labels import AGGRESSIVE, NORMAL
+from dt_highway.world.continuum import DriverProfile, draw_traits, profile_of, top_share
 from dt_highway.world.vehicle import FastIDMVehicle, clip, local_coordinates, wrap_to_pi
 
 DRIVER_TYPES = (NORMAL, AGGRESSIVE)
@@ -45,27 +52,48 @@ def driver_type(vehicle: Vehicle) -> str | None:
     return getattr(vehicle, "dt_driver_type", None)
 
 
+def aggressiveness(vehicle: Vehicle) -> float | None:
+    """:return: the latent aggressiveness of a continuum driver's vehicle, ``None`` for the ego and in
+        the two-class world. Evaluation only."""
+    return getattr(vehicle, "dt_aggressiveness", None)
+
+
 @dataclass(frozen=True)
 class Driver:
     """One member of the driver population (ground truth).
 
     :param driver_id: stable id, also the vehicle id while this driver is on the road
     :param driver_type: ``"normal"`` or ``"aggressive"``
-    :param desired_speed_mps: IDM desired speed [m/s]
+    :param desired_speed_mps: IDM desired speed [m/s] (``profile.desired_speed_mps``)
     :param connected: whether the vehicle uploads GNSS fixes to the cloud twin
+    :param profile: the driver's own parameters
+    :param aggressiveness: latent aggressiveness ``z`` (continuum population), ``None`` in the two-class world
     """
 
     driver_id: int
     driver_type: str
     desired_speed_mps: float
     connected: bool
+    profile: DriverProfile
+    aggressiveness: float | None = None
+
+
+def _connected(n: int, connected_fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Exactly ``round(connected_fraction * n)`` connected drivers, drawn from ``rng``."""
+    connected = np.zeros(n, dtype=bool)
+    connected[rng.permutation(n)[: int(round(connected_fraction * n))]] = True
+    return connected
 
 
 class DriverPopulation:
     """A fixed, seeded set of drivers that NPC vehicles are drawn from.
 
     The share of aggressive drivers is exact (``round(fraction * size)``); which drivers are
-    aggressive and which are connected is drawn from ``rng``.
+    aggressive and which are connected is drawn from ``rng``. Two-class population
+    (``traffic.population = "two_class"``): the types are shuffled, then the connected drivers
+    drawn, then each driver's desired speed, uniform in its type's range. Continuum: the latent
+    scores ``z`` are drawn, then the connected drivers, then each parameter for all drivers
+    (:func:`~dt_highway.world.continuum.draw_traits`); the top share by ``z`` is aggressive.
 
     :param config: traffic configuration
     :param connected_fraction: share of connected drivers [-]
@@ -73,19 +101,36 @@ class DriverPopulation:
     """
 
     def __init__(self, config: TrafficConfig, connected_fraction: float, rng: np.random.Generator) -> None:
+        self.drivers: dict[int, Driver] = {}
+        if config.population == "continuum":
+            self._draw_continuum(config, connected_fraction, rng)
+        else:
+            self._draw_two_class(config, connected_fraction, rng)
+
+    def _draw_two_class(self, config: TrafficConfig, connected_fraction: float, rng: np.random.Generator) -> None:
         n = config.population_size
         n_aggr = int(round(config.aggressive_fraction * n))
         types = np.array([AGGRESSIVE] * n_aggr + [NORMAL] * (n - n_aggr))
         rng.shuffle(types)
-        n_conn = int(round(connected_fraction * n))
-        connected = np.zeros(n, dtype=bool)
-        connected[rng.permutation(n)[:n_conn]] = True
-        self.drivers: dict[int, Driver] = {}
+        connected = _connected(n, connected_fraction, rng)
         for i in range(n):
-            params = config.aggressive if types[i] == AGGRESSIVE else config.normal
+            aggressive = types[i] == AGGRESSIVE
+            params = config.aggressive if aggressive else config.normal
             lo, hi = params.target_speed_mps
             speed = float(rng.uniform(lo, hi))
-            self.drivers[i + 1] = Driver(i + 1, str(types[i]), speed, bool(connected[i]))
+            profile = DriverProfile.from_preset(params, speed, config.cut_in_rate_per_min if aggressive else 0.0)
+            self.drivers[i + 1] = Driver(i + 1, str(types[i]), speed, bool(connected[i]), profile)
+
+    def _draw_continuum(self, config: TrafficConfig, connected_fraction: float, rng: np.random.Generator) -> None:
+        n = config.population_size
+        z = rng.standard_normal(n)
+        aggressive = top_share(z, config.aggressive_fraction)
+        connected = _connected(n, connected_fraction, rng)
+        traits = draw_traits(config.continuum, z, rng)
+        for i in range(n):
+            profile = profile_of(traits, i, config.continuum.lateral_settle_m)
+            self.drivers[i + 1] = Driver(i + 1, AGGRESSIVE if aggressive[i] else NORMAL, profile.desired_speed_mps,
+                                         bool(connected[i]), profile, float(z[i]))
 
     def __len__(self) -> int:
         return len(self.drivers)
@@ -95,7 +140,7 @@ class DriverPopulation:
 
 
 class TypedDriverVehicle(FastIDMVehicle):
-    """An IDM/MOBIL vehicle whose gains come from its driver type, plus aggressive cut-ins.
+    """An IDM/MOBIL vehicle whose gains come from its driver's profile (:meth:`apply_params`), plus cut-ins.
 
     The lateral controller is a lateral-speed-limited lane follower: desired lateral speed
     ``-offset / lateral_time_constant_s`` clipped to ``max_lateral_speed_mps``, turned into a
@@ -110,11 +155,12 @@ class TypedDriverVehicle(FastIDMVehicle):
         super().__init__(road, position, heading, speed, **kwargs)
         self.dt_id = -1
         self.dt_driver_type = NORMAL
+        self.dt_aggressiveness: float | None = None
         self.clock_s = 0.0
         self.cut_in: CutInPolicy | None = None
 
-    def apply_params(self, params: DriverParams) -> None:
-        """Set this vehicle's IDM/MOBIL gains from a driver type's parameters."""
+    def apply_params(self, params: DriverParams | DriverProfile) -> None:
+        """Set this vehicle's IDM/MOBIL gains and lateral speed limit from a driver's parameters."""
         self.TIME_WANTED = params.time_headway_s
         self.DISTANCE_WANTED = params.min_gap_m
         self.COMFORT_ACC_MAX = params.comfort_acc_mps2
@@ -160,7 +206,8 @@ def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
 
 @dataclass
 class CutInPolicy:
-    """When and in front of whom an aggressive driver cuts in.
+    """When and in front of whom a driver cuts in (an aggressive one in the two-class world; in the
+    continuum, every driver at its own rate).
 
     Attempts arrive as a Poisson process of rate ``rate_per_min``; an attempt stays open for
     ``patience_s`` until a victim qualifies: a vehicle in a neighbouring lane that this
@@ -342,17 +389,18 @@ class TrafficManager:
             road, lane.position(x_m, 0.0), lane.heading_at(x_m), speed_mps,
             target_lane_index=lane_index, target_speed=driver.desired_speed_mps,
         )
-        params = self.config.aggressive if driver.driver_type == AGGRESSIVE else self.config.normal
-        v.apply_params(params)
+        profile = driver.profile
+        v.apply_params(profile)
         v.DELTA = 4.0
-        v.timer = float(self.rng.uniform(0, params.lane_change_delay_s))
+        v.timer = float(self.rng.uniform(0, profile.lane_change_delay_s))
         v.dt_id = driver.driver_id
         v.dt_driver_type = driver.driver_type
+        v.dt_aggressiveness = driver.aggressiveness
         v.dt_connected = driver.connected
         v.clock_s = self.time_s
-        if driver.driver_type == AGGRESSIVE and self.config.cut_in_rate_per_min > 0:
+        if profile.cut_in_rate_per_min > 0:
             v.cut_in = CutInPolicy(
-                rate_per_min=self.config.cut_in_rate_per_min,
+                rate_per_min=profile.cut_in_rate_per_min,
                 gap_m=self.config.cut_in_gap_m,
                 search_range_m=self.config.cut_in_range_m,
                 ego_preference=self.config.cut_in_ego_preference,
