@@ -11,6 +11,7 @@ import argparse
 import json
 import math
 import re
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -37,7 +38,7 @@ from dt_highway.hmi.session import condition_order, run_session
 from dt_highway.jsonio import dump_json
 from dt_highway.rl.config import load_train_config
 from dt_highway.rl.files import sidecar_path
-from dt_highway.study import find_file, freeze_inputs, plan, run_study
+from dt_highway.study import find_file, freeze_inputs, is_completed, plan, run_study
 
 # Heavy modules are imported by the commands that need them, so that ``dt-highway --help`` and
 # the light commands start fast: the report (scipy.stats), the learned detector (torch) and RL
@@ -91,8 +92,8 @@ def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DT
     return load_config(args.scenario, args.overrides, extra)
 
 
-def _progress(total: int, desc: str, quiet: bool, unit: str = "step") -> tqdm:
-    return tqdm(total=total, desc=desc, unit=unit, disable=quiet, file=sys.stderr, leave=False)
+def _progress(total: int, desc: str, quiet: bool, unit: str = "step", initial: int = 0) -> tqdm:
+    return tqdm(total=total, desc=desc, unit=unit, disable=quiet, file=sys.stderr, leave=False, initial=initial)
 
 
 def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]:
@@ -193,6 +194,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         driver, scenario = find_file(args.driver, "agents"), find_file_or_default(args.scenario)
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    _check_study_out(out)
     # bad driver files and configurations fail here, once, rather than in every trial
     drv = load_driver(driver)
     load_config(scenario, overrides)
@@ -214,14 +216,21 @@ def cmd_study(args: argparse.Namespace) -> int:
     frozen_driver, frozen_scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
     specs = [replace(s, driver=frozen_driver, scenario=frozen_scenario) for s in specs]
     t0 = time.perf_counter()
-    with _progress(len(specs), "study", args.quiet, unit="trial") as bar:
+    with _progress(len(specs), "study", args.quiet, unit="trial",
+                   initial=sum(is_completed(s.directory) for s in specs)) as bar:  # a resumed study's done trials
 
         def done(r: dict[str, Any]) -> None:
-            bar.update(1)
+            if r["status"] != "skipped":  # counted from the start
+                bar.update(1)
             if r["status"] == "failed":
                 bar.write(f"trial {Path(r['directory']).name} failed: {r.get('error')}", file=sys.stderr)
 
-        result = run_study(specs, out, args.workers, done, args.backend, args.ray_address)
+        try:
+            result = run_study(specs, out, args.workers, done, args.backend, args.ray_address)
+        except KeyboardInterrupt:
+            bar.close()
+            _interrupted(specs, out)
+            return 130
     print(f"study {out}: {len(result.completed)} trials run, {len(result.skipped)} already done, "
           f"{len(result.failed)} failed ({time.perf_counter() - t0:.0f} s)")
     if args.quick or args.report:
@@ -229,6 +238,28 @@ def cmd_study(args: argparse.Namespace) -> int:
         _print_summary(files["summary"])
         print(f"wrote {', '.join(str(f) for f in files.values())}")
     return 1 if result.failed else 0
+
+
+def _check_study_out(out: str) -> None:
+    """Refuse a study directory that exists and is not a study's (no ``study.json``) unless it is empty."""
+    path = Path(out)
+    if not path.exists() or (path / "study.json").exists():
+        return
+    if not path.is_dir():
+        raise ConfigError(f"--out {out} is not a directory")
+    if {p.name for p in path.iterdir()} - {"inputs"}:  # inputs/ alone: a study stopped before its first trial
+        raise ConfigError(f"--out {out} exists and is not a study (no study.json): use a new or empty directory")
+
+
+def _interrupted(specs: Sequence[Any], out: str) -> None:
+    """After Ctrl-C: what is done, and the command that resumes the study."""
+    n = sum(is_completed(s.directory) for s in specs)
+    if sys.argv[1:2] == ["study"]:
+        again = shlex.join(["dt-highway", *sys.argv[1:]])
+        how = f"resume with: {again}"
+    else:  # called as a function (main(argv)): sys.argv is not this command's
+        how = f"resume with the same command (same --out {shlex.quote(out)})"
+    print(f"dt-highway study: interrupted, {n} of {len(specs)} trials done in {out}; {how}", file=sys.stderr)
 
 
 def _print_summary(path: Path) -> None:

@@ -8,16 +8,21 @@ is shown); in ``adas`` they run and the driver sees the overlay.
 Trials run in a process pool (``workers``), each writing its own crash-safe log directory
 (:mod:`dt_highway.metrics.trial_log`) under ``<out>/trials/<condition>-<i>``; a finished trial is
 skipped when the study is run again (resume), and a trial that fails is reported and marked
-aborted without stopping the others.
+aborted without stopping the others. Ctrl-C (SIGINT to the process group, as a terminal sends it)
+starts no further trial, interrupts the running ones (their logs are closed as aborted,
+"interrupted by the user") and raises :class:`KeyboardInterrupt` once they have stopped.
 """
 
 from __future__ import annotations
 
 import json
+import signal
 import socket
+import threading
 import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from contextlib import closing, contextmanager
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -139,6 +144,14 @@ class TrialSpec:
     parquet: bool = False
 
 
+def is_completed(directory: str | Path) -> bool:
+    """Whether a trial directory holds a completed trial (its ``meta.json`` says so)."""
+    try:
+        return json.loads((Path(directory) / "meta.json").read_text()).get("status") == "completed"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Run one trial and write its log.
 
@@ -258,8 +271,9 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
             progress(r)
 
     if backend == "ray":
-        for r in _run_ray(specs, ray_address, workers):
-            record(r)
+        with closing(_run_ray(specs, ray_address, workers)) as results:  # closed on Ctrl-C: its tasks are cancelled
+            for r in results:
+                record(r)
         return result
     if backend != "process":
         raise ConfigError(f"unknown backend {backend!r} (allowed: process, ray)")
@@ -267,14 +281,84 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
         for s in specs:
             record(run_trial(s))
         return result
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures: dict[Future, TrialSpec] = {pool.submit(run_trial, s): s for s in specs}
-        for fut in as_completed(futures):
-            try:
-                record(fut.result())
-            except Exception as err:  # noqa: BLE001 - a worker that died
-                record({"status": "failed", "directory": futures[fut].directory, "error": f"{type(err).__name__}: {err}"})
+    _run_pool(specs, workers, record)
     return result
+
+
+_stop_event: Any = None  # in a study's worker process: the study's stop flag (a multiprocessing Event)
+_stopped = False  # in a study's worker process: set by Ctrl-C, after which it starts no trial
+
+
+def _sigint_seen(signum: int, frame: Any) -> None:
+    global _stopped
+    _stopped = True
+
+
+def _worker_init(stop: Any) -> None:
+    """Start a study's worker process: Ctrl-C between trials is remembered (during one, it interrupts it)."""
+    global _stop_event
+    _stop_event = stop
+    signal.signal(signal.SIGINT, _sigint_seen)
+
+
+def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
+    """:func:`run_trial` in a worker process: not started after Ctrl-C, interrupted by it.
+
+    :return: run_trial's result, or status ``cancelled`` (not started) or ``interrupted``
+    """
+    global _stopped
+    if _stopped or (_stop_event is not None and _stop_event.is_set()):
+        return {"status": "cancelled", "directory": spec.directory}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return run_trial(spec)
+    except KeyboardInterrupt:  # its log is closed as aborted, "interrupted by the user"
+        _stopped = True
+        return {"status": "interrupted", "directory": spec.directory}
+    finally:
+        signal.signal(signal.SIGINT, _sigint_seen)
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ignore Ctrl-C while worker processes start: they inherit it, so that a half-started
+    worker cannot die of it (with a traceback); :func:`_worker_init` then takes it over."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _run_pool(specs: Sequence[TrialSpec], workers: int, record: Callable[[dict[str, Any]], None]) -> None:
+    """Run the trials in a process pool, passing each result to ``record`` as it finishes.
+
+    On Ctrl-C no queued trial starts; the running ones (whose processes got the SIGINT too)
+    stop, and :class:`KeyboardInterrupt` is raised once they have.
+    """
+    ctx = get_context("spawn")
+    stop = ctx.Event()
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(stop,)) as pool:
+        try:
+            with _sigint_ignored():  # the workers start at submit
+                futures: dict[Future, TrialSpec] = {pool.submit(_pool_trial, s): s for s in specs}
+            for fut in as_completed(futures):
+                try:
+                    r = fut.result()
+                except KeyboardInterrupt:
+                    r = {"status": "interrupted"}
+                except Exception as err:  # noqa: BLE001 - a worker that died
+                    r = {"status": "failed", "directory": futures[fut].directory, "error": f"{type(err).__name__}: {err}"}
+                if r["status"] in ("interrupted", "cancelled"):  # a worker got Ctrl-C: so did we, or will
+                    raise KeyboardInterrupt
+                record(r)
+        except KeyboardInterrupt:
+            stop.set()  # trials already handed to a worker's queue do not start either
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
 
 
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
@@ -289,7 +373,7 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
         raise ConfigError(f"cannot reach Ray at {address}: {err}") from None
 
 
-def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> Iterator[dict[str, Any]]:
+def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> Generator[dict[str, Any], None, None]:
     """Run the trials as Ray tasks (one CPU each), yielding each result as it finishes.
 
     Without ``address`` a local Ray is started with ``workers`` CPUs and shut down after;
@@ -314,14 +398,20 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> I
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(run_trial)
         pending = {task.remote(s): s for s in specs}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                spec = pending.pop(ref)
-                try:
-                    yield ray.get(ref)
-                except Exception as err:  # noqa: BLE001 - a task whose worker died
-                    yield {"status": "failed", "directory": spec.directory, "error": f"{type(err).__name__}: {err}"}
+        try:
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    spec = pending.pop(ref)
+                    try:
+                        yield ray.get(ref)
+                    except Exception as err:  # noqa: BLE001 - a task whose worker died
+                        yield {"status": "failed", "directory": spec.directory, "error": f"{type(err).__name__}: {err}"}
+        finally:
+            if pending:  # Ctrl-C: the queued tasks do not start, the running ones get KeyboardInterrupt
+                for ref in pending:
+                    ray.cancel(ref)
+                ray.wait(list(pending), num_returns=len(pending), timeout=10.0)  # their logs are closed
     finally:
         if started:
             ray.shutdown()

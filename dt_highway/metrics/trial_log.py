@@ -123,7 +123,9 @@ class TrialWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        if exc_type is not None:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            self.close("aborted", "interrupted by the user")  # Ctrl-C
+        elif exc_type is not None:
             self.close("aborted", f"{exc_type.__name__}: {exc}")
         else:
             self.close("completed", self.meta.get("end_reason") or "")
