@@ -820,17 +820,10 @@ def set_highway_keys(config: DTConfig, values: dict[str, Any]) -> DTConfig:
         key = sections[0]
         raise ConfigError(f"env.unwrapped.config holds highway-env's keys (the 'highway' section) only: set '{key}' "
                           f"with env.unwrapped.configure({{'{key}': {{...}}}}) or gym.make(..., config=...)")
-    fixed = sorted(values.keys() & ENV_SET_HIGHWAY_KEYS)
-    if fixed:
-        raise ConfigError(f"env.unwrapped.config['{fixed[0]}'] is set by dt-highway-v0 itself (its traffic and its one "
-                          f"ego) and cannot be changed: use traffic.fast_road / traffic.driver_types instead")
     tree = config.to_dict()
     tree["highway"].update(copy.deepcopy(values))
     return validate(tree)
 
-
-ENV_SET_HIGHWAY_KEYS = frozenset({"other_vehicles_type", "controlled_vehicles", "neighbour_vehicles_connected_lanes"})
-"""highway-env keys that ``dt-highway-v0`` sets itself (shown in ``env.unwrapped.config``, not configurable)"""
 
 
 # ----------------------------------------------------------------------------- files and --set

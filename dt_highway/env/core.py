@@ -39,7 +39,7 @@ from dt_highway.camera.render import (
 )
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.camera.truth import CameraTruth
-from dt_highway.config import CameraConfig, ConfigError, DTConfig, merge, set_highway_keys
+from dt_highway.config import CameraConfig, ConfigError, DTConfig, HighwayConfig, merge, set_highway_keys
 from dt_highway.env.actions import DiscreteDriverAction, DriverAction
 from dt_highway.env.adas import AdasPipeline
 from dt_highway.env.flat_config import FlatConfig
@@ -171,6 +171,10 @@ class DTHighwayEnv(HighwayEnv):
         :param values: keys and their new values (each replaces the old value whole)
         :raises ConfigError: one line naming ``highway.<key>``
         """
+        fixed = sorted(k for k in values if k in self.config and k not in HighwayConfig.model_fields)
+        if fixed:  # in the flat dict, but derived by the env (its traffic, its one ego), not part of the tree
+            raise ConfigError(f"env.unwrapped.config['{fixed[0]}'] is set by dt-highway-v0 itself (its traffic and its "
+                              f"one ego) and cannot be changed: use traffic.fast_road / traffic.driver_types instead")
         self.dt_config = set_highway_keys(self.dt_config, values)
         self._show_config()
 
