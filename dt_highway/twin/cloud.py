@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from dt_highway.config import ConfigError, DownlinkConfig, TwinConfig
+from dt_highway.twin.intention import LaneChangeIntent
 from dt_highway.twin.store import FixStore
 from dt_highway.twin.tagger import DriverRecord, HighwayMap, LaneChange, Tagger
 from dt_highway.twin.uplink import GnssFix
@@ -37,6 +38,8 @@ class TwinVehicleView:
     :param confidence: probability of ``tag`` under the twin's model [-]
     :param n_sudden: sudden lane changes seen
     :param observed_s: time the twin has observed this driver [s]
+    :param intents: the twin's lane-change intention, one per configured horizon (shortest
+        first); empty when the intention model is off
     """
 
     vehicle_id: int
@@ -49,6 +52,13 @@ class TwinVehicleView:
     confidence: float
     n_sudden: int
     observed_s: float
+    intents: tuple[LaneChangeIntent, ...] = ()
+
+    def intent(self, horizon_s: float) -> LaneChangeIntent | None:
+        """:return: the intention for the horizon closest to ``horizon_s``, ``None`` without any."""
+        if not self.intents:
+            return None
+        return min(self.intents, key=lambda i: abs(i.horizon_s - horizon_s))
 
 
 @dataclass(frozen=True)
