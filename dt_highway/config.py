@@ -362,6 +362,39 @@ POPULATIONS = ("two_class", "continuum")
 """``traffic.population``: two driver classes with fixed parameters, or a continuum of drivers"""
 
 
+class DangerousCutInConfig(_Section):
+    """The paper's near-miss cut-in (its section IV-C and Fig. 5), as a share of the cut-in attempts.
+
+    A dangerous attempt waits for a victim (the ego preferred) that it is beside or just ahead
+    of in the neighbouring lane, with a bumper gap in ``gap_m``; it changes lane at its driver's
+    full lateral speed and, once its centre is in the victim's lane, brakes at ``brake_mps2``
+    down to the victim's speed at the start minus ``speed_drop_mps``, so that the victim closes
+    on it. The other attempts are the gentler cut-ins of ``traffic.cut_in_*``. The section appears
+    in a dumped configuration only when it differs from its default (``share = 0``: no dangerous
+    cut-ins, the world of earlier versions).
+    """
+
+    share: float = Field(0.0, ge=0, le=1, description="share of cut-in attempts that are the dangerous manoeuvre [-]")
+    gap_m: tuple[float, float] = Field(
+        (1.0, 8.0), description="bumper gap ahead of the victim when the dangerous lane change starts [m]"
+    )
+    brake_mps2: float = Field(3.0, ge=0, le=9, description="the cutter's deceleration once it is in the victim's lane "
+                              "[m/s^2]")
+    speed_drop_mps: float = Field(
+        4.0, ge=0, le=20, description="the cutter brakes to the victim's speed at the start minus this [m/s]"
+    )
+
+    @model_validator(mode="after")
+    def _gap(self) -> DangerousCutInConfig:
+        lo, hi = self.gap_m
+        if not 0 <= lo < hi:
+            raise ValueError(f"gap_m must be [low, high] with 0 <= low < high (got {list(self.gap_m)})")
+        return self
+
+
+_DEFAULT_DANGEROUS = DangerousCutInConfig()
+
+
 class TrafficConfig(_Section):
     """NPC population: driver types, aggressive behaviour, spawning and recycling.
 
@@ -423,10 +456,13 @@ class TrafficConfig(_Section):
     normal: DriverParams = Field(default_factory=_normal_driver)
     aggressive: DriverParams = Field(default_factory=_aggressive_driver)
     continuum: ContinuumConfig = Field(default_factory=ContinuumConfig)
+    dangerous: DangerousCutInConfig = Field(default_factory=DangerousCutInConfig)
 
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         out: dict[str, Any] = handler(self)
+        if self.dangerous == _DEFAULT_DANGEROUS:
+            out.pop("dangerous", None)
         if self.population == "two_class" and self.continuum == _DEFAULT_CONTINUUM:
             out.pop("population", None)
             out.pop("continuum", None)
@@ -630,11 +666,29 @@ class FusionConfig(_Section):
     continuity_bonus: float = Field(0.5, ge=0, le=10, description="tracked: cost taken off keeping a track [-]")
 
 
+OVERLAY_MODES = ("type", "threat", "both")
+"""``overlay.mode``: cars the twin tags aggressive, cars it predicts will cut into the ego's lane, or either"""
+
+
 class OverlayConfig(_Section):
-    """What the driver sees of the fusion's output: steady marks (:mod:`dt_highway.overlay`)."""
+    """What the driver sees of the fusion's output: steady marks (:mod:`dt_highway.overlay`).
+
+    ``mode`` chooses the cars marked (:mod:`dt_highway.env.adas`): ``type``, every car the twin tags
+    aggressive; ``threat``, every car whose lane-change intention at ``horizon_s`` has
+    ``p_change >= threshold`` into the ego's lane; ``both``, either. At most ``max_marks`` marks are
+    shown (nearest first; in ``both``, threats first), none for a car beyond ``max_range_m``, in
+    every mode. ``sham`` (the placebo condition) shows as many marks, alike, on cars drawn at random.
+    """
 
     onset_frames: int = Field(2, ge=1, le=100, description="consecutive fusion frames before a mark shows [-]")
     hold_s: float = Field(1.0, ge=0, le=10, description="a mark stays this long after its vehicle is lost [s]")
+    mode: Literal["type", "threat", "both"] = Field("type", description="which cars are marked: type, threat or both")
+    horizon_s: float = Field(3.0, gt=0, le=10, description="threat: the intention horizon read (the twin's nearest) [s]")
+    threshold: float = Field(0.5, ge=0, le=1, description="threat: least p_change of a lane change into the ego's "
+                             "lane [-]")
+    max_marks: int = Field(3, ge=1, le=50, description="most marks shown at once (nearest first) [-]")
+    max_range_m: float = Field(100.0, gt=0, le=2000, description="no mark for a car farther than this [m]")
+    sham: bool = Field(False, description="placebo: the same number of marks, alike, on cars drawn at random")
 
 
 # ----------------------------------------------------------------------------- root

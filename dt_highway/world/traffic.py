@@ -189,10 +189,20 @@ class TypedDriverVehicle(FastIDMVehicle):
         beta = math.asin(clip(heading_rate * (self.LENGTH / 2) / speed, -1.0, 1.0))
         return float(clip(math.atan(2.0 * math.tan(beta)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
 
+    def change_lane_policy(self) -> None:
+        """MOBIL, except while a dangerous cut-in is under way: the driver neither aborts it nor weaves on."""
+        if self.cut_in is not None and self.cut_in.committed(self.clock_s):
+            return
+        super().change_lane_policy()
+
     def act(self, action: dict | str | None = None) -> None:
         if self.cut_in is not None and not self.crashed:
             self.cut_in.maybe_cut_in(self)
         super().act(action)
+        if self.cut_in is not None and not self.crashed:
+            brake = self.cut_in.brake_acceleration(self)
+            if brake is not None:
+                self.action["acceleration"] = min(self.action["acceleration"], brake)
 
     def step(self, dt: float) -> None:
         self.clock_s += dt
@@ -202,6 +212,20 @@ class TypedDriverVehicle(FastIDMVehicle):
 def _bumper_gap_m(front: Vehicle, rear: Vehicle) -> float:
     """Gap from ``rear``'s front bumper to ``front``'s rear bumper along the road [m]."""
     return float(front.position[0] - rear.position[0]) - (front.LENGTH + rear.LENGTH) / 2.0
+
+
+@dataclass(frozen=True)
+class BrakePlan:
+    """The brake that follows a dangerous cut-in.
+
+    :param lane_index: the victim's lane, where the brake starts
+    :param start_s: when the lane change started (the driver's clock) [s]
+    :param target_speed_mps: brake until this slow [m/s]
+    """
+
+    lane_index: LaneIndex
+    start_s: float
+    target_speed_mps: float
 
 
 @dataclass
@@ -218,6 +242,13 @@ class CutInPolicy:
     attempt that finds no victim ends in a *lane hop* (weaving): a sudden change into the
     neighbouring lane with the most room ahead, if the new follower would not have to
     brake harder than the driver's ``max_braking_imposed_mps2``.
+
+    A share ``dangerous_share`` of the attempts (drawn when the attempt is scheduled) are the
+    paper's near-miss cut-in (section IV-C, Fig. 5): the victim must be just behind this driver
+    in the neighbouring lane, with a bumper gap in ``dangerous_gap_m``; the lane change goes at
+    the driver's full lateral speed and, once this driver's centre is in the victim's lane
+    (highway-env's ``lane_index``), it brakes at ``brake_mps2`` until it is ``speed_drop_mps``
+    slower than the victim was at the start (or ``BRAKE_TIMEOUT_S`` has passed), then drives on.
     """
 
     rate_per_min: float
@@ -231,16 +262,57 @@ class CutInPolicy:
     chase_patience_s: float = 0.0
     next_attempt_s: float = field(default=float("inf"))
     desired_speed_mps: float | None = None
+    dangerous_share: float = 0.0
+    dangerous_gap_m: tuple[float, float] = (1.0, 8.0)
+    brake_mps2: float = 3.0
+    speed_drop_mps: float = 4.0
+    dangerous: bool = False
+    """Whether the open (or next) attempt is the dangerous manoeuvre"""
+    brake: BrakePlan | None = None
+    """The brake after a dangerous cut-in, while it is due or under way"""
+    committed_until_s: float = -math.inf
+    """After a dangerous cut-in's brake, the driver keeps the lane until this time (its clock) [s]"""
 
     CHASE_SPEED_MPS = 5.0
     """How much faster than the ego a driver who wants to cut in front of it goes [m/s]"""
+    BRAKE_TIMEOUT_S = 6.0
+    """A dangerous cut-in's brake is given up this long after the lane change started [s]"""
+    KEEP_LANE_S = 3.0
+    """After a dangerous cut-in's brake, the driver keeps the victim's lane this long [s]"""
+    MATCHED_SPEED_MPS = 2.0
+    """A dangerous cut-in's victim drives within this of the cutting driver's speed [m/s]"""
+
+    def committed(self, now_s: float) -> bool:
+        """Whether a dangerous cut-in is under way (lane change, brake, then ``KEEP_LANE_S``): no MOBIL then."""
+        return self.brake is not None or now_s < self.committed_until_s
 
     def schedule(self, now_s: float) -> None:
-        """Draw the time of the next attempt after ``now_s`` [s]."""
+        """Draw the time of the next attempt after ``now_s`` [s] (and, with dangerous cut-ins on, its style)."""
         if self.rate_per_min <= 0:
             self.next_attempt_s = float("inf")
         else:
             self.next_attempt_s = now_s + float(self.rng.exponential(60.0 / self.rate_per_min))
+            if self.dangerous_share > 0:
+                self.dangerous = bool(self.rng.random() < self.dangerous_share)
+
+    @property
+    def gap_window_m(self) -> tuple[float, float]:
+        """The bumper gap ahead of the victim that the open attempt accepts [m]."""
+        return self.dangerous_gap_m if self.dangerous else self.gap_m
+
+    def brake_acceleration(self, me: TypedDriverVehicle) -> float | None:
+        """The deceleration command of a dangerous cut-in's brake at this step [m/s^2], ``None`` when none is due."""
+        plan = self.brake
+        if plan is None:
+            return None
+        if me.target_lane_index != plan.lane_index or me.clock_s - plan.start_s > self.BRAKE_TIMEOUT_S \
+                or (me.lane_index == plan.lane_index and me.speed <= plan.target_speed_mps):
+            self.brake = None  # done, or the lane change was given up (a crash), or it took too long
+            self.committed_until_s = me.clock_s + self.KEEP_LANE_S
+            return None
+        if me.lane_index != plan.lane_index:
+            return None  # not in the victim's lane yet
+        return -self.brake_mps2
 
     def maybe_cut_in(self, me: TypedDriverVehicle) -> None:
         now = me.clock_s
@@ -263,6 +335,8 @@ class CutInPolicy:
             victim = victims[int(self.rng.integers(len(victims)))]
         me.target_lane_index = victim.lane_index
         me.timer = 0.0
+        if self.dangerous:
+            self.brake = BrakePlan(victim.lane_index, now, float(victim.speed) - self.speed_drop_mps)
         if self.on_cut_in is not None:
             self.on_cut_in(me, victim)
         self._end_attempt(me, now)
@@ -292,9 +366,10 @@ class CutInPolicy:
         if self.desired_speed_mps is None:
             self.desired_speed_mps = me.target_speed
         gap = _bumper_gap_m(me, ego)
-        if gap < self.gap_m[0]:
+        lo, hi = self.gap_window_m
+        if gap < lo:
             me.target_speed = max(self.desired_speed_mps, ego.speed + self.CHASE_SPEED_MPS)
-        elif gap > self.gap_m[1]:
+        elif gap > hi:
             me.target_speed = max(ego.speed - self.CHASE_SPEED_MPS / 2, 5.0)
         else:
             me.target_speed = ego.speed + 1.0
@@ -318,7 +393,7 @@ class CutInPolicy:
 
     def _candidates(self, me: TypedDriverVehicle) -> list[Vehicle]:
         side = set(me.road.network.side_lanes(me.lane_index))
-        lo, hi = self.gap_m
+        lo, hi = self.gap_window_m
         out = []
         for v in me.road.vehicles:
             if v is me or v.crashed or v.lane_index not in side:
@@ -327,7 +402,11 @@ class CutInPolicy:
             if not 0.0 < dx < self.search_range_m:
                 continue
             gap = _bumper_gap_m(me, v)
-            if lo <= gap <= hi and v.speed <= me.speed + 3.0:
+            if not lo <= gap <= hi:
+                continue
+            if self.dangerous and abs(v.speed - me.speed) > self.MATCHED_SPEED_MPS:
+                continue  # the near miss starts at about the victim's speed: the brake makes the closing
+            if v.speed <= me.speed + 3.0:
                 out.append(v)
         return out
 
@@ -341,6 +420,7 @@ class TrafficEvent:
     :param vehicle_id: the acting vehicle
     :param other_id: the victim of a cut-in, else -1
     :param driver_type: the acting vehicle's true driver type
+    :param style: a cut-in's manoeuvre, ``"gentle"`` or ``"dangerous"``; else empty
     """
 
     time_s: float
@@ -348,6 +428,7 @@ class TrafficEvent:
     vehicle_id: int
     other_id: int = -1
     driver_type: str | None = None
+    style: str = ""
 
 
 class TrafficManager:
@@ -408,12 +489,17 @@ class TrafficManager:
                 rng=self.rng,
                 on_cut_in=self._record_cut_in,
                 on_lane_hop=self._record_lane_hop,
+                dangerous_share=self.config.dangerous.share,
+                dangerous_gap_m=self.config.dangerous.gap_m,
+                brake_mps2=self.config.dangerous.brake_mps2,
+                speed_drop_mps=self.config.dangerous.speed_drop_mps,
             )
             v.cut_in.schedule(self.time_s)
         return v
 
     def _record_cut_in(self, me: TypedDriverVehicle, victim: Vehicle) -> None:
-        self.events.append(TrafficEvent(self.time_s, "cut_in", me.dt_id, vehicle_id(victim), me.dt_driver_type))
+        style = "dangerous" if me.cut_in is not None and me.cut_in.brake is not None else "gentle"
+        self.events.append(TrafficEvent(self.time_s, "cut_in", me.dt_id, vehicle_id(victim), me.dt_driver_type, style))
 
     def _record_lane_hop(self, me: TypedDriverVehicle) -> None:
         self.events.append(TrafficEvent(self.time_s, "lane_hop", me.dt_id, -1, me.dt_driver_type))
