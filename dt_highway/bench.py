@@ -17,11 +17,12 @@ import cv2
 import gymnasium as gym
 import highway_env  # noqa: F401  (registers highway-v0)
 import numpy as np
+import pygame
 
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.scene import RoadScene, VehicleSet
-from dt_highway.config import DTConfig, merge
+from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.env import DTHighwayEnv, make_camera
 from dt_highway.hmi.drive import DriveOptions, run_drive
 from dt_highway.hmi.keys import KeyScript
@@ -256,10 +257,13 @@ DRIVE_TARGET_FPS = 30.0
 def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 640, height_px: int = 360,
                 condition: str = "adas", seed: int = 0, scenario: str | None = None,
                 overrides: list[str] | None = None) -> dict[str, Any]:
-    """Frame times of the real driving window (headless), driven by a key script that holds
-    the throttle: each frame's work (window events, the simulation steps due at that moment,
-    twin, camera, detector and fusion, composing and showing the picture), not the wait for
-    the next frame.
+    """Frame times of the real driving window, driven by a key script that holds the throttle:
+    each frame's work (window events, the simulation steps due at that moment, twin, camera,
+    detector and fusion, composing and showing the picture), not the wait for the next frame.
+
+    The window opens on the display when there is one (``DISPLAY`` or ``WAYLAND_DISPLAY`` set)
+    and ``SDL_VIDEODRIVER`` does not say otherwise; without a display it is drawn offscreen
+    (``SDL_VIDEODRIVER=offscreen``). ``video_driver`` says which SDL used.
 
     :param duration_s: trial length [s] (real time)
     :param vehicles: vehicles on the road [-]
@@ -268,9 +272,19 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
     :param condition: ``adas`` (fusion and overlay on) or ``baseline``
     :return: frame-time median, p90, p99 and max [ms], frames, achieved FPS over the trial's wall
         time, simulated over wall time (1.0: the simulation kept real time), targets and whether
-        they are met
+        they are met, the SDL video driver used (``video_driver``: ``x11``, ``wayland``, ``offscreen``...)
+        and the display it was given (``display``: ``DISPLAY`` or ``WAYLAND_DISPLAY``, ``None``)
+    :raises ConfigError: when the window cannot be opened (a display that cannot be reached)
     """
-    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    if not os.environ.get("SDL_VIDEODRIVER") and not display:
+        os.environ["SDL_VIDEODRIVER"] = "offscreen"  # no display: draw offscreen
+    used: list[str] = []
+
+    def note_driver(_: np.ndarray) -> None:
+        if not used:
+            used.append(pygame.display.get_driver())
+
     with tempfile.TemporaryDirectory() as tmp:
         opts = DriveOptions(
             participant="bench", condition=condition, out=Path(tmp), scenario=scenario,
@@ -278,7 +292,15 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
                        f"camera.height_px={height_px}", *(overrides or [])],
             duration_s=duration_s, seed=seed, keys_from=KeyScript.parse("0.5 down UP\n1.5 up UP\n"))
         t0 = time.perf_counter()
-        result = run_drive(opts)
+        try:
+            result = run_drive(opts, on_frame=note_driver)
+        except pygame.error as err:
+            if used:  # the window was open: not a display problem
+                raise
+            where = f"SDL_VIDEODRIVER={os.environ['SDL_VIDEODRIVER']}" if os.environ.get("SDL_VIDEODRIVER") \
+                else f"the display {display}"
+            raise ConfigError(f"cannot open the driving window with {where} ({err}): run headless with "
+                              "SDL_VIDEODRIVER=offscreen, or fix the display") from None
         wall = time.perf_counter() - t0
         ms = np.asarray(result["frame_ms"][1:], dtype=float)  # the first frame pays for warm-up
     p99 = float(np.percentile(ms, 99))
@@ -292,7 +314,7 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
         "frame_ms": {"median": round(float(np.median(ms)), 2), "p90": round(float(np.percentile(ms, 90)), 2),
                      "p99": round(p99, 2), "max": round(float(ms.max()), 2)},
         "target_p99_ms": DRIVE_TARGET_P99_MS, "target_met": p99 <= DRIVE_TARGET_P99_MS and fps >= DRIVE_TARGET_FPS,
-        "wall_s_with_setup": round(wall, 1),
+        "wall_s_with_setup": round(wall, 1), "video_driver": used[0] if used else None, "display": display,
     }
 
 

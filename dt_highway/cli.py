@@ -24,11 +24,21 @@ from tqdm import tqdm
 
 from dt_highway._version import __version__
 from dt_highway.bench import bench_camera, bench_detector, bench_drive, bench_fusion, bench_memory, bench_sim
-from dt_highway.conditions import condition_config
-from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge
+from dt_highway.conditions import CONDITIONS, condition_config
+from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge, parse_override
 from dt_highway.drivers import load_driver
 from dt_highway.env.seat import DriverSeat
+from dt_highway.evaluation.calibration import calibrate, calibration_table, markdown
 from dt_highway.evaluation.frames import record_frames
+from dt_highway.evaluation.intent import (
+    INTENT_EPISODES,
+    evaluate_intent,
+    format_intent,
+    format_sweep,
+    run_intent_sweep,
+    sweep_steps,
+)
+from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import evaluate as evaluate_driver
 from dt_highway.evaluation.twin import episode_steps, evaluate_twin
@@ -113,10 +123,15 @@ def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]
 def cmd_twin_eval(args: argparse.Namespace) -> int:
     if args.population is not None:  # before the --set overrides: a --set of the same key wins
         args.overrides = [f"traffic.population={args.population}", *args.overrides]
+    if args.intent:
+        return _twin_eval_intent(args)
+    if args.sweep:
+        raise ConfigError("--sweep goes with --intent")
     cfg = _config(args)
-    steps = args.episodes * episode_steps(cfg)
+    episodes = args.episodes or 3
+    steps = episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
-        result = evaluate_twin(cfg, args.episodes, args.seed, args.min_observed_s, progress=bar.update)
+        result = evaluate_twin(cfg, episodes, args.seed, args.min_observed_s, progress=bar.update)
     if args.json:
         print(dump_json(result))
     else:
@@ -137,6 +152,50 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(dump_json(result) + "\n")
         print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+def _twin_eval_intent(args: argparse.Namespace) -> int:
+    """``twin-eval --intent [--sweep]``: the lane-change intention against the simulator's truth."""
+    if args.scenario is None:
+        args.scenario = EVAL_SCENARIO
+    cfg = _config(args)
+    episodes = args.episodes or INTENT_EPISODES
+    result: dict[str, Any] | list[dict[str, Any]]
+    if args.sweep:
+        with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
+            result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update)
+        lines = format_sweep(result)
+    else:
+        with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
+            result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update)
+        lines = format_intent(result)
+    print(dump_json(result) if args.json else "\n".join(lines))
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(dump_json(result) + "\n")
+        print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+def cmd_train_intent(args: argparse.Namespace) -> int:
+    """Train the twin's lane-change intention network on simulated fixes (training seeds)."""
+    if args.scenario is None:
+        args.scenario = EVAL_SCENARIO
+    cfg = _config(args)
+    record = _progress(args.episodes * episode_steps(cfg), "record", args.quiet)
+    fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
+    alternate: dict[str, Any] = {}
+    for text in args.alternate:
+        alternate = deep_merge(alternate, parse_override(text))
+    merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
+    with record, fitting:
+        summary = train_intention(cfg, args.episodes, args.seed, args.out, args.epochs, alternate or None,
+                                  progress=lambda stage, n: (record if stage == "record" else fitting).update(n))
+    print(f"trained on {summary['samples']} estimates of seeds {summary['seeds'][0]}-{summary['seeds'][1]}, "
+          f"final loss {summary['final_loss']:.4f}")
+    print(f"wrote {summary['out']}")
     return 0
 
 
@@ -176,6 +235,32 @@ class _QuickStudy(TypedDict):
 
 QUICK: _QuickStudy = {"driver": "agents/human.toml", "trials": 3, "duration_s": 60.0}
 """The README's main job: a small paired study with the human-like driver"""
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Baseline figures of a scenario for several values of one knob (the calibration table)."""
+    key, sep, values = args.knob.partition("=")
+    if not sep or not key.strip() or not values.strip():
+        raise ConfigError(f"--knob must be KEY=V1,V2,... e.g. traffic.dangerous.brake_mps2=2,3,4 (got {args.knob!r})")
+    drivers = [find_file(d.strip(), "agents") for d in args.drivers.split(",") if d.strip()]
+    if not drivers:
+        raise ConfigError("--drivers needs at least one driver file, e.g. agents/human.toml,agents/idm.toml")
+    for d in drivers:
+        load_driver(d)
+    value_list = [v.strip() for v in values.split(",") if v.strip()]
+    scenario = find_file_or_default(args.scenario)
+    total = len(drivers) * len(value_list) * args.trials
+    with _progress(total, "calibrate", args.quiet, unit="trial") as bar:
+        cells = calibrate(key.strip(), value_list, drivers, args.out, args.trials, args.seed, scenario,
+                          args.overrides, args.workers, lambda r: bar.update(1))
+    table = calibration_table(cells, key.strip())
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    csv_path, md_path = Path(args.out) / "calibration.csv", Path(args.out) / "calibration.md"
+    table.to_csv(csv_path, index=False)
+    md_path.write_text(markdown(table), encoding="utf-8")
+    print(md_path.read_text(encoding="utf-8"), end="")
+    print(f"wrote {csv_path}, {md_path}")
+    return 0
 
 
 def cmd_study(args: argparse.Namespace) -> int:
@@ -297,14 +382,15 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
 
 
 def cmd_session(args: argparse.Namespace) -> int:
-    """A participant's session: practice, both conditions counterbalanced, breaks between."""
+    """A participant's session: practice, the conditions counterbalanced, breaks between."""
     base = _drive_options(args, "baseline")
-    order = condition_order(base.participant)
-    print(f"session of {base.participant} in {base.out}: practice, then {order[0]} and {order[1]}")
-    results = run_session(base, args.practice_duration)
-    done = sum(r["status"] in ("completed", "skipped") for r in results)
-    print(f"{done} of 3 trials done" + ("" if done == 3 else ": run the same command again to go on"))
-    return 0 if done == 3 else 1
+    conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    order = condition_order(base.participant, conditions)
+    print(f"session of {base.participant} in {base.out}: practice, then {', '.join(order)}")
+    results = run_session(base, args.practice_duration, conditions=conditions)
+    done, n = sum(r["status"] in ("completed", "skipped") for r in results), len(order) + 1
+    print(f"{done} of {n} trials done" + ("" if done == n else ": run the same command again to go on"))
+    return 0 if done == n else 1
 
 
 def _participant(text: str) -> str:
@@ -428,7 +514,9 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
               f"{result['end_reason']}); "
               f"frame time median {f['median']} ms, p90 {f['p90']} ms, p99 {f['p99']} ms, max {f['max']} ms "
               f"(targets p99 <= {result['target_p99_ms']:g} ms and >= 30 FPS: "
-              f"{'met' if result['target_met'] else 'NOT met'})")
+              f"{'met' if result['target_met'] else 'NOT met'}); video driver {result['video_driver']}"
+              + (f" (the display {result['display']} was not used)"
+                 if result["display"] and result["video_driver"] not in ("x11", "wayland") else ""))
     return 0
 
 
@@ -465,16 +553,20 @@ def _weights_arg(path: str | None) -> str | None:
 def cmd_detector_train(args: argparse.Namespace) -> int:
     """Train the learned detector (resumes from <out>.ckpt)."""
     from dt_highway.perception.learned.model import Architecture  # lazy: torch (~1.3 s)
-    from dt_highway.perception.learned.train import TrainSettings, train  # lazy: torch
+    from dt_highway.perception.learned.train import TrainSettings, check_training, train  # lazy: torch
 
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
+    arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
+    settings = TrainSettings(minutes=args.minutes, batch=args.batch, seed=args.seed, max_steps=args.max_steps)
+    try:  # a directory for --out, a checkpoint already done...: refused before any training starts
+        check_training(out, arch, settings, resume=not args.fresh)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     if out.exists() and not ckpt.exists() and not args.fresh:
         raise ConfigError(f"{out} exists and has no checkpoint to resume: pass --fresh to train anew and replace it")
     if ckpt.exists() and not args.fresh:
         print(f"resuming from {ckpt}", file=sys.stderr)
-    arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
-    settings = TrainSettings(minutes=args.minutes, batch=args.batch, seed=args.seed, max_steps=args.max_steps)
     total = int(round(args.minutes * 60))
     with tqdm(total=total, desc="train", unit="s", disable=args.quiet, file=sys.stderr, leave=False,
               bar_format="{l_bar}{bar}| {n:.0f}/{total} s [{elapsed}<{remaining}{postfix}]") as bar:
@@ -672,7 +764,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"dt-highway {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("run", help="run headless episodes and score the twin (the quick end-to-end run)")
+    p = sub.add_parser("run", help="headless episodes on the IDM autopilot, scoring the twin (the main job: study --quick)")
     _add_config_args(p)
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=2, help="episodes (default 2)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
@@ -680,19 +772,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("twin-eval", help="precision/recall of the twin's aggressive tags against ground truth")
+    p = sub.add_parser("twin-eval", help="precision/recall of the twin's aggressive tags against ground truth "
+                       "(--intent: its lane-change intention)")
     _add_config_args(p)
-    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=3, help="episodes (default 3)")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"),
+                   help=f"episodes (default 3; with --intent {INTENT_EPISODES})")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode (default 0)")
     p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"), default=30.0,
                    help="judge only drivers the twin observed this long [s] (default 30)")
     p.add_argument("--population", choices=POPULATIONS,
                    help="driver population, shortcut for --set traffic.population=...; continuum adds the ROC AUCs "
                    "and the precision at recall >= 0.80 (default: the configuration's, two_class)")
+    p.add_argument("--intent", action="store_true",
+                   help="score the lane-change intention instead: ROC AUC and precision/recall per horizon, cut-in recall "
+                   "at precision >= 0.80 and warning lead time (default scenario envs/highway-trial.toml, seed 0: "
+                   "held out from train-intent's seeds)")
+    p.add_argument("--sweep", action="store_true",
+                   help="with --intent: sweep GNSS noise {0.5,1,2,3} m, latency {0,0.1,0.3,0.5} s, rate {10,5,2,1} Hz")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_twin_eval)
+
+    p = sub.add_parser("train-intent", help="train the twin's lane-change intention network on simulated fixes")
+    _add_config_args(p, EVAL_SCENARIO)
+    p.add_argument("--out", required=True, help="weights file to write (.npz; the shipped one is "
+                   "dt_highway/twin/intention_weights.npz)")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=40,
+                   help="training episodes, one per seed (default 40)")
+    p.add_argument("--seed", type=_seed, default=1000,
+                   help="first training seed (default 1000; evaluation uses seed 0 and its world)")
+    p.add_argument("--epochs", type=_positive(int, "--epochs"), default=25, help="passes over the data (default 25)")
+    p.add_argument("--alternate", metavar="KEY=VALUE", action="append", default=[],
+                   help="the odd training seeds also take this override (a mix of two worlds), e.g. "
+                   "traffic.dangerous.share=0.5 (repeatable)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train_intent)
 
     p = sub.add_parser("camera", help="write sample frames of the ego camera (RGB, depth, instance ids, boxes) as PNGs")
     _add_config_args(p)
@@ -719,7 +834,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("study", help="a paired baseline/ADAS study of a driver (trial logs, then the report)")
     _add_config_args(p, STUDY_SCENARIO)
     p.add_argument("--driver", help="driver file, e.g. agents/human.toml")
-    p.add_argument("--conditions", default="baseline,adas", help="conditions (default baseline,adas)")
+    p.add_argument("--conditions", default="baseline,adas",
+                   help=f"conditions, paired by seed (default baseline,adas; allowed: {','.join(CONDITIONS)})")
     p.add_argument("--trials", type=_positive(int, "--trials"), help="pairs of trials (default 10; --quick: 3)")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first pair; pair i uses seed + i (default 0)")
     p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
@@ -736,13 +852,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("drive", help="one keyboard trial in the driving window (first-person camera, AR overlay)")
     _add_drive_args(p)
-    p.add_argument("--condition", required=True, choices=("baseline", "adas"), help="baseline or adas")
+    p.add_argument("--condition", required=True, choices=CONDITIONS, help="baseline, adas, sham...")
     p.add_argument("--practice", action="store_true", help="a practice trial (not in the report)")
     p.add_argument("--out", required=True, help="study directory, e.g. runs/<study>")
     p.set_defaults(func=cmd_drive)
 
-    p = sub.add_parser("session", help="a participant's session: practice, both conditions counterbalanced")
+    p = sub.add_parser("session", help="a participant's session: practice, the conditions counterbalanced")
     _add_drive_args(p)
+    p.add_argument("--conditions", default="baseline,adas",
+                   help="conditions, in a balanced Latin square order by participant (default baseline,adas; e.g. "
+                        "baseline,adas-threat,sham)")
     p.add_argument("--out", default="runs/keyboard-study", help="study directory (default runs/keyboard-study)")
     p.add_argument("--practice-duration", type=_positive(float, "--practice-duration"), default=60.0,
                    help="practice trial length [s] (default 60)")
@@ -764,13 +883,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=10, help="episodes (default 10)")
     p.add_argument("--seed", type=_seed, default=0,
                    help="seed of the first episode; episode i uses seed + i (default 0)")
-    p.add_argument("--condition", choices=("baseline", "adas"), default="adas",
+    p.add_argument("--condition", choices=CONDITIONS, default="adas",
                    help="with the ADAS overlay or without (default adas)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--episodes-json", action="store_true", help="with --json: include every episode's metrics")
     p.add_argument("--out", dest="out_json", metavar="FILE", help="also write the JSON result (every episode) to FILE")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("calibrate", help="a scenario knob's baseline figures (cut-in TTC, collisions) per value and driver")
+    _add_config_args(p, STUDY_SCENARIO)
+    p.add_argument("--knob", required=True, metavar="KEY=V1,V2,...",
+                   help="the configuration key to vary and its values, e.g. traffic.dangerous.brake_mps2=2,3,4")
+    p.add_argument("--drivers", default="agents/human.toml,agents/idm.toml",
+                   help="driver files, comma-separated (default agents/human.toml,agents/idm.toml)")
+    p.add_argument("--trials", type=_positive(int, "--trials"), default=10, help="baseline trials per cell (default 10)")
+    p.add_argument("--seed", type=_seed, default=1000,
+                   help="seed of the first trial (default 1000: apart from the studies' seeds 0..)")
+    p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
+    p.add_argument("--out", default="runs/calibration", help="where the cells' trials and the table go")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("report", help="the safety-metrics report of a study directory")
     p.add_argument("study", help="study directory (runs/<name>)")

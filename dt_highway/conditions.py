@@ -1,7 +1,21 @@
 """The study's conditions and what each changes in the env's configuration.
 
-``baseline``: camera and fusion off, nothing is shown to the driver; ``adas``: they run and the
-driver sees the overlay. Every condition drives the ego through the ``Driver`` action.
+* ``baseline``: camera and fusion off, nothing is shown to the driver;
+* ``adas``: they run and the driver sees the overlay, in ``overlay.mode`` as configured (scenario
+  file or ``--set overlay.mode=...``; default ``type``);
+* ``adas-type``, ``adas-threat``: the same with ``overlay.mode`` set to ``type`` (every car the twin
+  tags aggressive) or ``threat`` (cars the twin predicts will cut into the ego's lane);
+* ``sham``: the placebo (``overlay.sham = true``): the overlay of ``overlay.mode`` as configured is
+  computed and hidden, and as many marks, alike, are shown on cars drawn at random
+  (:class:`~dt_highway.overlay.ShamOverlay`); ``sham-type`` and ``sham-threat`` mirror the mode
+  named, so that one study can hold ``adas-type``, ``adas-threat`` and the sham of either.
+
+Every condition drives the ego through the ``Driver`` action. A condition's settings sit above the
+scenario file and below ``--set`` (:func:`~dt_highway.config.load_config`): ``--set overlay.mode=...``
+would override ``adas-type``'s mode too.
+
+What a participant is told (:func:`display_name`): ``baseline`` or ``adas``; a sham condition is
+shown as ``adas`` (the placebo is blind), as are the named modes.
 """
 
 from __future__ import annotations
@@ -10,7 +24,43 @@ from typing import Any
 
 from dt_highway.config import ConfigError
 
-CONDITIONS = ("baseline", "adas")
+CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
+"""Every condition a study or a keyboard session can run"""
+
+_MODE = {"adas-type": "type", "adas-threat": "threat", "sham-type": "type", "sham-threat": "threat"}
+
+
+def check_condition(condition: str) -> str:
+    """:return: ``condition`` when it is one of :data:`CONDITIONS`
+    :raises ConfigError: one line naming the allowed ones
+    """
+    if condition not in CONDITIONS:
+        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
+    return condition
+
+
+def shows_overlay(condition: str) -> bool:
+    """Whether the driver sees an overlay (every condition but ``baseline``).
+
+    :raises ConfigError: on an unknown condition
+    """
+    return check_condition(condition) != "baseline"
+
+
+def is_sham(condition: str) -> bool:
+    """Whether a condition is the placebo.
+
+    :raises ConfigError: on an unknown condition
+    """
+    return check_condition(condition).startswith("sham")
+
+
+def display_name(condition: str) -> str:
+    """What a participant is told the condition is: ``baseline`` or ``adas`` (module docstring).
+
+    :raises ConfigError: on an unknown condition
+    """
+    return "adas" if shows_overlay(condition) else "baseline"
 
 
 def condition_config(condition: str) -> dict[str, Any]:
@@ -20,7 +70,13 @@ def condition_config(condition: str) -> dict[str, Any]:
     :return: a partial configuration tree
     :raises ConfigError: on an unknown condition
     """
-    if condition not in CONDITIONS:
-        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
-    on = condition == "adas"
-    return {"highway": {"action": {"type": "Driver"}}, "camera": {"enabled": on}, "fusion": {"enabled": on}}
+    on = shows_overlay(condition)
+    out: dict[str, Any] = {"highway": {"action": {"type": "Driver"}}, "camera": {"enabled": on}, "fusion": {"enabled": on}}
+    overlay: dict[str, Any] = {}
+    if condition in _MODE:
+        overlay["mode"] = _MODE[condition]
+    if is_sham(condition):
+        overlay["sham"] = True
+    if overlay:
+        out["overlay"] = overlay
+    return out

@@ -525,6 +525,15 @@ class StoreConfig(_Section):
         "(set traffic.population_seed too, so that the ids mean the same drivers)",
     )
 
+    @field_validator("path")
+    @classmethod
+    def _a_file(cls, path: str | None) -> str | None:
+        if path and Path(path).exists() and not Path(path).is_file():  # a directory, /dev/null...
+            what = "a directory" if Path(path).is_dir() else "not a regular file"
+            raise PydanticCustomError("not_a_file", "must name a SQLite file, new or existing (this is {what})",
+                                      {"got": path, "what": what})
+        return path
+
 
 class TaggerConfig(_Section):
     """Sudden-lane-change detector and the Poisson-rate driver classifier (see twin/tagger.py)."""
@@ -553,8 +562,53 @@ class TaggerConfig(_Section):
         return self
 
 
+INTENTION_MODELS = ("learned", "physics")
+"""``twin.intention.model``: the shipped network, or lateral motion + gap acceptance (see twin/intention.py)"""
+
+
+class IntentionConfig(_Section):
+    """The twin's lane-change intention (:mod:`dt_highway.twin.intention`): for every connected vehicle,
+    P(it changes lane within H) and into which lane, from the cloud's data only.
+
+    The section appears in a dumped configuration only when it differs from its default.
+    """
+
+    enabled: bool = Field(True, description="estimate the intention and send it on the downlink beside the tag")
+    model: Literal["learned", "physics"] = Field(
+        "learned", description="'learned': the shipped network; 'physics': lateral motion + gap acceptance"
+    )
+    horizons_s: tuple[float, ...] = Field(
+        (1.0, 2.0, 3.0), description="horizons H, increasing (1 to 8 of them; the shipped network covers 0.5-4 s) [s]"
+    )
+    update_hz: float = Field(10.0, gt=0, le=100, description="how often the intentions are estimated [Hz]")
+    operating_horizon_s: float = Field(
+        3.0, gt=0, description="the horizon a warning is read at (one of horizons_s) [s]"
+    )
+    threshold: float = Field(
+        0.7, gt=0, lt=1, description="operating threshold: warn when P(change within the operating horizon) >= this "
+        "(the lowest with precision >= 0.80 on validation seeds 2000-2011 of envs/highway-trial.toml) [-]"
+    )
+    weights: str | None = Field(
+        None, description="learned: weights file (.npz from dt-highway train-intent; None: the shipped weights)"
+    )
+
+    @model_validator(mode="after")
+    def _horizons(self) -> IntentionConfig:
+        h = self.horizons_s
+        if not 1 <= len(h) <= 8 or any(not 0 < x <= 10 for x in h) or any(b <= a for a, b in zip(h, h[1:], strict=False)):
+            raise ValueError(f"horizons_s must be 1 to 8 increasing values in (0, 10] s (got {list(h)})")
+        if not any(abs(x - self.operating_horizon_s) < 1e-9 for x in h):
+            raise ValueError(f"operating_horizon_s must be one of horizons_s {list(h)} (got {self.operating_horizon_s})")
+        if self.weights is not None and not Path(self.weights).is_file():
+            raise ValueError(f"weights file not found: {self.weights}")
+        return self
+
+
+_DEFAULT_INTENTION = IntentionConfig()
+
+
 class TwinConfig(_Section):
-    """The cloud digital twin: uplink, store, tagger, downlink."""
+    """The cloud digital twin: uplink, store, tagger, intention, downlink."""
 
     enabled: bool = True
     connected_fraction: float = Field(1.0, ge=0, le=1, description="share of NPCs that upload fixes [-]")
@@ -568,6 +622,14 @@ class TwinConfig(_Section):
     downlink: DownlinkConfig = Field(default_factory=DownlinkConfig)
     store: StoreConfig = Field(default_factory=StoreConfig)
     tagger: TaggerConfig = Field(default_factory=TaggerConfig)
+    intention: IntentionConfig = Field(default_factory=IntentionConfig)
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        out: dict[str, Any] = handler(self)
+        if self.intention == _DEFAULT_INTENTION:
+            out.pop("intention", None)
+        return out
 
 
 # ----------------------------------------------------------------------------- ego
@@ -675,7 +737,8 @@ class OverlayConfig(_Section):
 
     ``mode`` chooses the cars marked (:mod:`dt_highway.env.adas`): ``type``, every car the twin tags
     aggressive; ``threat``, every car whose lane-change intention at ``horizon_s`` has
-    ``p_change >= threshold`` into the ego's lane; ``both``, either. At most ``max_marks`` marks are
+    ``p_change >= threshold`` into the ego's lane (by default the twin's operating point,
+    ``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``); ``both``, either. At most ``max_marks`` marks are
     shown (nearest first; in ``both``, threats first), none for a car beyond ``max_range_m``, in
     every mode. ``sham`` (the placebo condition) shows as many marks, alike, on cars drawn at random.
     """
@@ -683,9 +746,10 @@ class OverlayConfig(_Section):
     onset_frames: int = Field(2, ge=1, le=100, description="consecutive fusion frames before a mark shows [-]")
     hold_s: float = Field(1.0, ge=0, le=10, description="a mark stays this long after its vehicle is lost [s]")
     mode: Literal["type", "threat", "both"] = Field("type", description="which cars are marked: type, threat or both")
-    horizon_s: float = Field(3.0, gt=0, le=10, description="threat: the intention horizon read (the twin's nearest) [s]")
-    threshold: float = Field(0.5, ge=0, le=1, description="threat: least p_change of a lane change into the ego's "
-                             "lane [-]")
+    horizon_s: float | None = Field(None, gt=0, le=10, description="threat: the intention horizon read (the twin's "
+                                    "nearest; None: twin.intention.operating_horizon_s) [s]")
+    threshold: float | None = Field(None, ge=0, le=1, description="threat: least p_change of a lane change into the "
+                                    "ego's lane (None: twin.intention.threshold) [-]")
     max_marks: int = Field(3, ge=1, le=50, description="most marks shown at once (nearest first) [-]")
     max_range_m: float = Field(100.0, gt=0, le=2000, description="no mark for a car farther than this [m]")
     sham: bool = Field(False, description="placebo: the same number of marks, alike, on cars drawn at random")
@@ -890,7 +954,8 @@ def read_scenario(path: str | Path) -> dict[str, Any]:
     """
     p = Path(path)
     if not p.is_file():
-        raise ConfigError(f"scenario file '{p}' does not exist")
+        what = "is not a file" if p.exists() else "does not exist"  # a directory, /dev/null...
+        raise ConfigError(f"scenario file '{p}' {what}: give a TOML file, e.g. envs/highway-trial.toml")
     try:
         with p.open("rb") as fh:
             return tomllib.load(fh)

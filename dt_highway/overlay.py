@@ -1,9 +1,18 @@
-"""The AR overlay: which marks a driver sees, kept steady, and how they are drawn.
+"""The AR overlay: which cars are marked, how the marks are kept steady, bounded and drawn.
 
-The fusion places the twin's aggressive-tagged vehicles on camera boxes frame by frame; a far
-or partly hidden car is placed in some frames and not in others. Shown as it is, its mark
-blinks, and a blinking mark is both hard to read and a different warning from a steady one.
-:class:`OverlayStabilizer` turns the fusion's per-frame items into the marks a driver sees:
+Which cars (:func:`select_items`, ``overlay.mode``): ``type`` marks every car the twin tags
+aggressive ("AGGRESSIVE DRIVER"); ``threat`` marks every car whose lane-change intention at
+``overlay.horizon_s`` (:meth:`~dt_highway.twin.cloud.TwinVehicleView.intent`, the twin's nearest
+horizon) has ``p_change >= overlay.threshold`` (by default the twin's operating point,
+``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``) and targets the ego's lane ("CUTTING IN" with the side
+it comes from, left or right of the ego's lane centre by its last fix; "+ aggressive driver" when the
+twin also tags it; the percentage shown is ``p_change``); ``both`` marks either (a car that is both
+gets the threat cue). Only cars the fusion placed in the image within ``overlay.max_range_m``.
+
+The fusion places the cars on camera boxes frame by frame; a far or partly hidden car is placed in
+some frames and not in others. Shown as it is, its mark blinks, and a blinking mark is both hard to
+read and a different warning from a steady one. :class:`OverlayStabilizer` turns the per-frame items
+into the marks a driver sees:
 
 * a vehicle's mark appears once the fusion has placed it in ``onset_frames`` consecutive
   frames (one stray frame does not flash a mark);
@@ -12,27 +21,46 @@ blinks, and a blinking mark is both hard to read and a different warning from a 
 * when the fusion stops placing it, the mark is held for ``hold_s`` at the box predicted
   from its last movement (the box's velocity in the image), then removed.
 
-Nothing here reads ground truth: input is the fusion's overlay items only.
+Clutter (:func:`bound_marks`): at most ``overlay.max_marks`` of the steady marks are shown, threats
+first, then nearest first (by the distance the fusion measured); in ``type`` and ``threat`` all marks
+are of one kind, so it is nearest first. Labels never stack into towers (:func:`label_layout`).
+
+The placebo (:class:`ShamOverlay`, ``overlay.sham``): the real overlay is computed and hidden, and as
+many marks, with the same labels, are shown on cars drawn at random among the placed ones.
+
+Nothing here reads ground truth: input is the fusion's placements and the twin's view only.
 
 :func:`draw_overlay` draws the marks on an RGB frame (a box and a label a driver reads at a
-glance: "AGGRESSIVE DRIVER", the twin's confidence and the distance); the driving window and
-the frame export both use it.
+glance: "AGGRESSIVE DRIVER" or "<< CUTTING IN", the twin's confidence and the distance); the driving
+window and the frame export both use it.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import cv2
 import numpy as np
 
 from dt_highway.config import OverlayConfig, validate_section
+from dt_highway.labels import AGGRESSIVE
+
+if TYPE_CHECKING:
+    from dt_highway.perception.fusion import Placement
+    from dt_highway.twin.cloud import TwinVehicleView
+    from dt_highway.twin.tagger import HighwayMap
 
 MARK_RGB = (235, 40, 40)
 """Colour of an aggressive-driver mark (RGB)"""
+THREAT_RGB = (255, 150, 0)
+"""Colour of a cut-in (threat) mark (RGB): amber, a caution that something is about to happen"""
+TYPE_LABEL = "aggressive driver"
+"""The label of a ``type`` mark"""
+THREAT_CUE, TYPE_CUE = "threat", "type"
+"""``cue`` of an overlay item: a predicted cut-in, or a driver type"""
 _DEFAULTS = OverlayConfig()
 
 
@@ -109,9 +137,227 @@ class OverlayStabilizer:
         return out
 
 
-def _label_lines(item: dict[str, Any]) -> tuple[str, str]:
-    head = str(item.get("label", "aggressive driver")).upper()
+# ----------------------------------------------------------------------------- which cars
+def threat_label(side: str | None, aggressive: bool) -> str:
+    """The label of a threat mark: ``"cutting in from left"`` (``+ aggressive driver`` when the twin
+    also tags the car).
+
+    :param side: ``"left"`` or ``"right"`` of the ego's lane, ``None`` when not known
+    :param aggressive: the twin tags the car aggressive
+    """
+    head = "cutting in" if side is None else f"cutting in from {side}"
+    return f"{head} + {TYPE_LABEL}" if aggressive else head
+
+
+def side_of(y_m: float, ego_lane: int, road_map: HighwayMap) -> str:
+    """Which side of the ego's lane a car is on, by its lateral position (left: smaller ``y``, the
+    lower lane ids; a car on the lane's centre line counts as right).
+
+    :param y_m: the car's lateral position (its last fix) [m]
+    :param ego_lane: the ego's lane id
+    :param road_map: the lanes
+    :return: ``"left"`` or ``"right"``
+    """
+    centre = road_map.first_lane_y_m + ego_lane * road_map.lane_width_m
+    return "left" if y_m < centre else "right"
+
+
+def is_threat(view: TwinVehicleView, ego_lane: int, horizon_s: float, threshold: float) -> bool:
+    """Whether the twin predicts that a car moves into the ego's lane within the horizon.
+
+    :param view: what the twin sent of the car
+    :param ego_lane: the ego's lane id (negative: unknown, never a threat)
+    :param horizon_s: the horizon read (the twin's nearest one) [s]
+    :param threshold: least ``p_change`` [-]
+    """
+    intent = view.intent(horizon_s)
+    return (ego_lane >= 0 and intent is not None and intent.p_change >= threshold
+            and intent.target_lane == ego_lane)
+
+
+DEFAULT_HORIZON_S, DEFAULT_THRESHOLD = 2.0, 0.5
+"""The threat's operating point when neither ``overlay`` nor the caller gives one (the defaults of
+``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``) [s], [-]"""
+
+
+def select_items(placements: Mapping[int, Placement], views: Mapping[int, TwinVehicleView], settings: OverlayConfig,
+                 ego_lane: int, road_map: HighwayMap) -> list[dict[str, Any]]:
+    """This frame's overlay items before stabilising: the placed cars ``overlay.mode`` marks
+    (module docstring), within ``overlay.max_range_m``.
+
+    :param placements: the fusion's placements, by vehicle id
+    :param views: the twin's view of each placed vehicle, by id
+    :param settings: the ``overlay`` section (``horizon_s``/``threshold`` ``None``: :data:`DEFAULT_HORIZON_S`,
+        :data:`DEFAULT_THRESHOLD`; the env's pipeline fills them in from ``twin.intention``)
+    :param ego_lane: the ego's lane id (the ego knows its own lane)
+    :param road_map: the lanes (for the side a threat comes from)
+    :return: items ``vehicle_id``, ``box`` [px], ``label``, ``confidence`` [-], ``distance_m``, ``rule``,
+        ``cue`` (``"type"`` or ``"threat"``), and for a threat ``side`` and ``aggressive``
+    """
+    horizon_s = settings.horizon_s if settings.horizon_s is not None else DEFAULT_HORIZON_S
+    threshold = settings.threshold if settings.threshold is not None else DEFAULT_THRESHOLD
+    items = []
+    for vid, p in placements.items():
+        if p.box is None or not p.distance_m <= settings.max_range_m:  # NaN fails too
+            continue
+        tv = views[vid]
+        aggressive = tv.tag == AGGRESSIVE
+        base = {"vehicle_id": vid, "box": list(p.box), "distance_m": p.distance_m, "rule": p.rule}
+        intent = tv.intent(horizon_s)
+        if settings.mode != "type" and intent is not None and is_threat(tv, ego_lane, horizon_s, threshold):
+            side = side_of(tv.y_m, ego_lane, road_map)
+            items.append({**base, "label": threat_label(side, aggressive), "confidence": float(intent.p_change),
+                          "cue": THREAT_CUE, "side": side, "aggressive": aggressive})
+        elif settings.mode != "threat" and aggressive:
+            items.append({**base, "label": TYPE_LABEL, "confidence": float(tv.confidence), "cue": TYPE_CUE})
+    return items
+
+
+def _priority(item: Mapping[str, Any]) -> tuple[bool, float, int]:
+    dist = item.get("distance_m")
+    d = float(dist) if dist is not None and math.isfinite(float(dist)) else math.inf
+    return item.get("cue") != THREAT_CUE, d, int(item.get("vehicle_id", 0))
+
+
+def bound_marks(marks: Sequence[dict[str, Any]], max_marks: int) -> list[dict[str, Any]]:
+    """The clutter bound: the ``max_marks`` marks shown, threats first, then nearest first.
+
+    :param marks: the steady marks (:meth:`OverlayStabilizer.update`)
+    :param max_marks: most marks [-]
+    :return: the marks kept, in that order
+    """
+    return sorted(marks, key=_priority)[:max_marks]
+
+
+# ----------------------------------------------------------------------------- the placebo
+@dataclass
+class _Slot:
+    car: int
+    box: np.ndarray
+    velocity_px_s: np.ndarray
+    last_seen_s: float
+    distance_m: float
+    rule: str
+    side: str | None
+
+
+class ShamOverlay:
+    """The placebo overlay: the real overlay's marks, as many and alike, on cars drawn at random.
+
+    Each frame the real overlay (after stabilising and the clutter bound) is given, hidden from
+    the driver. For each real mark the sham shows one mark on a *slot car*:
+
+    * when a real mark first appears, its slot car is drawn uniformly (with this overlay's own
+      seeded generator) among the cars the fusion placed this frame within ``overlay.max_range_m``
+      that no other sham mark holds; nothing about the cars but their ids enters the draw (never
+      the twin's tag or intention, and not the real mark's car either: it can be drawn too);
+    * the slot car keeps the mark for as long as the real mark is shown; when the fusion stops
+      placing the slot car, the sham mark is held at its predicted box like a real one
+      (``hold_s``), and after that a new car is drawn (the car left the view);
+    * the sham mark carries the real mark's label and cue (type or threat, the "aggressive driver"
+      part, the percentage shown), with the box, distance and, for a threat cue, the side
+      (left or right of the ego's lane) of its own car.
+
+    So the number of marks is the real overlay's at every frame (held real marks included), and
+    each sham mark lasts as long as the real mark it mirrors, except when fewer cars are placed
+    than there are real marks (then fewer are shown) and when a slot car leaves the view (the mark
+    moves to another car). The draws do not depend on which cars the real overlay marks: given the
+    times real marks start and end, the sham marks are the same whichever cars the twin tags (a run
+    with the tags shuffled among the cars shows the same sham marks), with one exception: real
+    marks that start in the same frame are paired with that frame's draws in the real overlay's
+    order (threats first, nearest first), so which of those sham marks ends first follows them.
+
+    :param rng: the overlay's random generator (seeded by the env)
+    :param hold_s: how long a sham mark stays on a car the fusion lost [s]
+    """
+
+    def __init__(self, rng: np.random.Generator, hold_s: float = _DEFAULTS.hold_s) -> None:
+        self.rng = rng
+        self.hold_s = hold_s
+        self._slots: dict[int, _Slot] = {}
+        self._t_s: float | None = None
+
+    def reset(self) -> None:
+        """Forget every slot (a new episode)."""
+        self._slots.clear()
+        self._t_s = None
+
+    @property
+    def pairs(self) -> dict[int, int]:
+        """Each real mark's vehicle id and the car its sham mark is on (evaluation)."""
+        return {rid: s.car for rid, s in self._slots.items()}
+
+    def _follow(self, cars: Mapping[int, Mapping[str, Any]], t_s: float) -> None:
+        """Move the slots with their cars; drop those whose car has been gone longer than the hold."""
+        for rid in list(self._slots):
+            s = self._slots[rid]
+            car = cars.get(s.car)
+            if car is None:
+                if t_s - s.last_seen_s > self.hold_s:
+                    del self._slots[rid]
+                continue
+            box = np.asarray(car["box"], dtype=float)
+            gap = t_s - s.last_seen_s
+            if gap > 0:
+                s.velocity_px_s = (box - s.box) / gap
+            s.box, s.last_seen_s = box, t_s
+            s.distance_m, s.rule, s.side = float(car["distance_m"]), str(car.get("rule", "")), car.get("side")
+
+    def update(self, real: Sequence[Mapping[str, Any]], cars: Mapping[int, Mapping[str, Any]],
+               t_s: float) -> list[dict[str, Any]]:
+        """One frame.
+
+        :param real: the real overlay's marks this frame (hidden from the driver)
+        :param cars: the cars the fusion placed this frame within range, by id: ``box`` [px],
+            ``distance_m``, ``rule``, ``side`` (of the ego's lane)
+        :param t_s: the frame's time [s]
+        :return: the sham marks (``held`` when the slot car is not placed this frame)
+        """
+        self._t_s = t_s
+        shown = {int(m["vehicle_id"]) for m in real}
+        for rid in [r for r in self._slots if r not in shown]:  # the real mark is gone: so is its sham
+            del self._slots[rid]
+        self._follow(cars, t_s)
+        taken = {s.car for s in self._slots.values()}
+        out = []
+        for m in real:
+            rid = int(m["vehicle_id"])
+            s = self._slots.get(rid)
+            if s is None:
+                free = sorted(set(cars) - taken)
+                if not free:
+                    continue
+                vid = free[int(self.rng.integers(len(free)))]
+                car = cars[vid]
+                s = self._slots[rid] = _Slot(vid, np.asarray(car["box"], dtype=float), np.zeros(4), t_s,
+                                             float(car["distance_m"]), str(car.get("rule", "")), car.get("side"))
+                taken.add(vid)
+            out.append(self._item(m, s, t_s))
+        return out
+
+    @staticmethod
+    def _item(real: Mapping[str, Any], s: _Slot, t_s: float) -> dict[str, Any]:
+        age = t_s - s.last_seen_s
+        box = s.box + s.velocity_px_s * age if age > 0 else s.box
+        item = {**real, "vehicle_id": s.car, "box": [float(b) for b in box], "distance_m": s.distance_m,
+                "rule": s.rule, "held": age > 0}
+        if real.get("cue") == THREAT_CUE:
+            side = s.side if s.side is not None else real.get("side")
+            item["side"] = side
+            item["label"] = threat_label(side, bool(real.get("aggressive", False)))
+        return item
+
+
+# ----------------------------------------------------------------------------- drawing
+def _label_lines(item: Mapping[str, Any]) -> tuple[str, str]:
     parts = []
+    if item.get("cue") == THREAT_CUE:
+        side = item.get("side")
+        head = "<< CUTTING IN" if side == "left" else "CUTTING IN >>" if side == "right" else "CUTTING IN"
+        if item.get("aggressive"):
+            parts.append("AGGRESSIVE")
+    else:
+        head = str(item.get("label", TYPE_LABEL)).upper()
     conf = item.get("confidence")
     if conf is not None and math.isfinite(float(conf)):
         parts.append(f"{100 * float(conf):.0f} %")
@@ -121,64 +367,132 @@ def _label_lines(item: dict[str, Any]) -> tuple[str, str]:
     return head, "  ".join(parts)
 
 
-def draw_overlay(rgb: np.ndarray, items: Sequence[dict[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
+class Banner(NamedTuple):
+    """Where one mark's box and label go on the image (:func:`label_layout`).
+
+    :param mark: the mark's index in the items given
+    :param box: the box clipped to the image ``(x1, y1, x2, y2)`` [px]
+    :param label: the label's rectangle ``(x, y, w, h)`` [px], ``None`` when dropped
+    :param head: the label's first line
+    :param sub: its second line (confidence, distance; may be empty)
+    :param moved: the label was moved up past another one (a leader line joins it to the box)
+    """
+
+    mark: int
+    box: tuple[int, int, int, int]
+    label: tuple[int, int, int, int] | None
+    head: str
+    sub: str
+    moved: bool
+
+
+def _overlaps(r: tuple[int, int, int, int], placed: Sequence[tuple[int, int, int, int]]) -> list[int]:
+    x, y, w, h = r
+    return [i for i, (ox, oy, ow, oh) in enumerate(placed) if x < ox + ow and ox < x + w and y < oy + oh and oy < y + h]
+
+
+def _text_size(head: str, sub: str, scale: float) -> tuple[int, int, int, int, int, int]:
+    """``(w, h, pad, th1, th2, thick)`` of a label at ``scale``."""
+    thick = max(1, round(3 * scale))
+    font = cv2.FONT_HERSHEY_DUPLEX
+    (tw1, th1), _ = cv2.getTextSize(head, font, 0.9 * scale, thick)
+    (tw2, th2), _ = cv2.getTextSize(sub, font, 0.75 * scale, max(1, thick - 1)) if sub else ((0, 0), 0)
+    pad = max(2, round(6 * scale))
+    return max(tw1, tw2) + 2 * pad, th1 + (th2 + pad if sub else 0) + 2 * pad, pad, th1, th2, thick
+
+
+def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, full_labels: int = 2,
+                 label_range_m: float = 60.0) -> list[Banner]:
+    """Where the marks' boxes and labels go: no two labels overlap, and none is stacked more
+    than one label high.
+
+    Labels are placed in priority order (threats first, then nearest first). A label sits just
+    above its box (below it when there is no room above). The ``full_labels`` first ones within
+    ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or "<< CUTTING IN", confidence,
+    distance), the others a small "!" tag. A label that would overlap one already placed is
+    moved up once, just above the one in the way, and joined to its box by a leader line; if it
+    still overlaps a label, or leaves the image, it is **dropped**: its box is drawn without a
+    label (a farther or lower-priority car keeps its box; the warning of the car before it is
+    the one that is read). So labels never build towers.
+
+    :param items: the marks (``box`` [px], ``label``, ``cue``, ``distance_m``, ...)
+    :param width: image width [px]
+    :param height: image height [px]
+    :param full_labels: most marks with the full label [-]
+    :param label_range_m: farthest distance of a full label [m]
+    :return: one banner per mark whose box is on the image, in priority order
+    """
+    scale = max(height / 720.0, 0.3)  # text and lines grow with the picture
+    thick = max(1, round(3 * scale))
+    placed: list[tuple[int, int, int, int]] = []
+    out = []
+    n_full = 0
+    for i in sorted(range(len(items)), key=lambda k: _priority(items[k])):
+        item = items[i]
+        x1, y1, x2, y2 = (float(v) for v in item["box"])
+        if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= width or y1 >= height:
+            continue
+        p1 = (int(round(max(x1, 0))), int(round(max(y1, 0))))
+        p2 = (int(round(min(x2, width - 1))), int(round(min(y2, height - 1))))
+        dist = item.get("distance_m")
+        d = float(dist) if dist is not None else math.nan
+        if n_full < full_labels and (not math.isfinite(d) or d <= label_range_m):
+            head, sub = _label_lines(item)
+            n_full += 1
+        else:
+            head, sub = "!", ""
+        bw, bh, pad, _, _, _ = _text_size(head, sub, scale)
+        bx = int(np.clip((p1[0] + p2[0]) / 2 - bw / 2, 0, max(width - bw, 0)))
+        by = p1[1] - bh - thick
+        if by < 0:  # no room above the box: below it
+            by = min(p2[1] + thick, height - bh)
+        rect: tuple[int, int, int, int] | None = (bx, by, bw, bh)
+        moved = False
+        in_way = _overlaps((bx, by, bw, bh), placed)
+        if in_way:  # once up, above the labels in the way; else dropped
+            by = min(placed[j][1] for j in in_way) - bh - pad
+            moved = True
+            rect = (bx, by, bw, bh) if by >= 0 and not _overlaps((bx, by, bw, bh), placed) else None
+        if rect is not None:
+            placed.append(rect)
+        out.append(Banner(i, (p1[0], p1[1], p2[0], p2[1]), rect, head, sub, moved and rect is not None))
+    return out
+
+
+def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
                  full_labels: int = 2, label_range_m: float = 60.0) -> np.ndarray:
-    """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label above it
-    ("AGGRESSIVE DRIVER", confidence and distance) on a filled banner, sized to the image.
-    The nearest vehicle's label sits just above its box; labels that would cover another
-    one are moved up and joined to their box by a line. So that a glance is enough, only
-    the ``full_labels`` nearest marks within ``label_range_m`` get the full label; the others
-    get a small "!" tag.
+    """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label above it on a
+    filled banner, sized to the image (:func:`label_layout`: no towers of labels). Threat marks
+    ("<< CUTTING IN", the side it comes from) are amber (:data:`THREAT_RGB`), the others ``colour``.
 
     :param rgb: ``uint8 (H, W, 3)`` RGB frame
     :param items: marks (:meth:`OverlayStabilizer.update` or ``info["adas"]["overlay"]``)
-    :param colour: the marks' colour (RGB)
+    :param colour: the colour of the driver-type marks (RGB)
     :param full_labels: most marks with the full label [-]
     :param label_range_m: farthest distance of a full label [m]
     :return: the annotated frame (same shape)
     """
     out = np.ascontiguousarray(rgb).copy()
     h, w = out.shape[:2]
-    scale = max(h / 720.0, 0.3)  # text and lines grow with the picture
-    thick = max(1, round(3 * scale))
+    scale = max(h / 720.0, 0.3)
     font = cv2.FONT_HERSHEY_DUPLEX
-    placed: list[tuple[int, int, int, int]] = []
-    banners = []
-    n_full = 0
-    for item in sorted(items, key=lambda it: float(it.get("distance_m") or 0.0)):  # nearest first
-        x1, y1, x2, y2 = (float(v) for v in item["box"])
-        if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= w or y1 >= h:
+    banners = label_layout(items, w, h, full_labels, label_range_m)
+    for b in banners:
+        c = THREAT_RGB if items[b.mark].get("cue") == THREAT_CUE else colour
+        cv2.rectangle(out, b.box[:2], b.box[2:], c, max(1, round(3 * scale)), cv2.LINE_AA)
+    for b in reversed(banners):  # the first (nearest, threats) drawn last, on top
+        if b.label is None:
             continue
-        p1 = (int(round(max(x1, 0))), int(round(max(y1, 0))))
-        p2 = (int(round(min(x2, w - 1))), int(round(min(y2, h - 1))))
-        cv2.rectangle(out, p1, p2, colour, thick, cv2.LINE_AA)
-        dist = float(item.get("distance_m") or 0.0)
-        if n_full < full_labels and (not math.isfinite(dist) or dist <= label_range_m):
-            head, sub = _label_lines(item)
-            n_full += 1
-        else:
-            head, sub = "!", ""
-        fs_head, fs_sub = 0.9 * scale, 0.75 * scale
-        (tw1, th1), _ = cv2.getTextSize(head, font, fs_head, thick)
-        (tw2, th2), _ = cv2.getTextSize(sub, font, fs_sub, max(1, thick - 1)) if sub else ((0, 0), 0)
-        pad = max(2, round(6 * scale))
-        bw, bh = max(tw1, tw2) + 2 * pad, th1 + (th2 + pad if sub else 0) + 2 * pad
-        bx = int(np.clip((p1[0] + p2[0]) / 2 - bw / 2, 0, max(w - bw, 0)))
-        by = p1[1] - bh - thick
-        if by < 0:  # no room above the box: below it
-            by = min(p2[1] + thick, h - bh)
-        while by > 0 and any(bx < ox2 and ox1 < bx + bw and by < oy2 and oy1 < by + bh
-                             for ox1, oy1, ox2, oy2 in placed):
-            by = max(by - bh - pad, 0)  # move up past the label in the way
-        placed.append((bx, by, bx + bw, by + bh))
-        banners.append((item, head, sub, bx, by, bw, bh, pad, th1, th2, p1, p2))
-    for _item, head, sub, bx, by, bw, bh, pad, th1, th2, p1, p2 in reversed(banners):  # nearest drawn last, on top
-        if by + bh < p1[1] - thick:  # moved away from its box: a leader line
-            cx = (p1[0] + p2[0]) // 2
-            cv2.line(out, (int(np.clip(cx, bx, bx + bw)), by + bh), (cx, p1[1]), colour, max(1, thick - 1), cv2.LINE_AA)
-        cv2.rectangle(out, (bx, by), (bx + bw, by + bh), colour, -1)
-        cv2.putText(out, head, (bx + pad, by + pad + th1), font, fs_head, (255, 255, 255), thick, cv2.LINE_AA)
-        if sub:
-            cv2.putText(out, sub, (bx + pad, by + 2 * pad + th1 + th2), font, fs_sub, (255, 255, 255),
+        c = THREAT_RGB if items[b.mark].get("cue") == THREAT_CUE else colour
+        bx, by, bw, bh = b.label
+        _, _, pad, th1, th2, thick = _text_size(b.head, b.sub, scale)
+        x1, y1, x2, _ = b.box
+        if b.moved or by + bh < y1 - thick:  # away from its box: a leader line
+            cx = (x1 + x2) // 2
+            cv2.line(out, (int(np.clip(cx, bx, bx + bw)), by + bh), (cx, y1), c, max(1, thick - 1), cv2.LINE_AA)
+        cv2.rectangle(out, (bx, by), (bx + bw, by + bh), c, -1)
+        cv2.putText(out, b.head, (bx + pad, by + pad + th1), font, 0.9 * scale, (255, 255, 255), thick, cv2.LINE_AA)
+        if b.sub:
+            cv2.putText(out, b.sub, (bx + pad, by + 2 * pad + th1 + th2), font, 0.75 * scale, (255, 255, 255),
                         max(1, thick - 1), cv2.LINE_AA)
     return out

@@ -3,7 +3,10 @@
 Paired design: trial ``i`` of every condition starts from the same traffic seed (``seed + i``)
 and the driver's own randomness from the same seed, so the conditions differ only in what
 the driver is shown. In the ``baseline`` condition the camera and fusion are off (nothing
-is shown); in ``adas`` they run and the driver sees the overlay.
+is shown); in ``adas`` they run and the driver sees the overlay; ``adas-type``/``adas-threat`` fix
+the overlay's mode, and ``sham`` is the placebo (:mod:`dt_highway.conditions`). Any number of
+conditions can be paired this way (``--conditions baseline,adas-threat,sham``): every condition's
+trial ``i`` has the same seed.
 
 Trials run in a process pool (``workers``), each writing its own crash-safe log directory
 (:mod:`dt_highway.metrics.trial_log`) under ``<out>/trials/<condition>-<i>``; a finished trial is
@@ -124,7 +127,7 @@ class TrialSpec:
 
     :param directory: where its log goes
     :param driver: driver file (``agents/<name>.toml``)
-    :param condition: ``baseline`` or ``adas``
+    :param condition: one of :data:`~dt_highway.conditions.CONDITIONS`
     :param index: trial number within the condition (the pair it belongs to)
     :param seed: traffic and driver seed
     :param scenario: scenario file or ``None``
@@ -232,9 +235,16 @@ class StudyResult:
 
 def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, seed: int,
          scenario: str | None = None, overrides: Sequence[str] = (), parquet: bool = False) -> list[TrialSpec]:
-    """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``)."""
+    """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``).
+
+    :param conditions: any of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``,
+        ``adas-type``, ``adas-threat``, ``sham``...), each once
+    :raises ConfigError: on an unknown or repeated condition, or ``trials < 1``
+    """
     for c in conditions:
         condition_config(c)
+    if len(set(conditions)) != len(conditions) or not conditions:
+        raise ConfigError(f"--conditions must name each condition once (got {','.join(conditions) or 'none'})")
     if trials < 1:
         raise ConfigError(f"--trials must be >= 1 (got {trials})")
     return [TrialSpec(str(Path(out) / "trials" / f"{c}-{i:03d}"), driver, c, i, seed + i, scenario, tuple(overrides),

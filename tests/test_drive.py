@@ -37,7 +37,7 @@ def test_a_replayed_trial_is_logged_completely_with_the_scripted_keys(tmp_path):
     expected = [(float(t), f"key_{a}", k) for t, a, k in (line.split() for line in SCRIPT.splitlines())]
     assert keys == expected
     steps = trial.steps
-    assert len(steps) == 37 and steps["t_s"].max() == pytest.approx(2.4)  # 15 Hz, one row per simulation step
+    assert len(steps) == 36 and steps["t_s"].max() == pytest.approx(2.4)  # 15 Hz, one row per simulation step
     held = steps.set_index("t_s")["keys"].fillna("")
     assert held.loc[0.6:0.9].eq("UP").all() and held.loc[1.7:1.9].eq("DOWN").all() and held.loc[2.1:].eq("").all()
     accel = steps["action_accel_mps2"].to_numpy()  # row k: t = k / 15 s
@@ -66,8 +66,10 @@ def test_a_sigkilled_keyboard_trial_is_readable_and_aborted(tmp_path):
     keys = tmp_path / "keys.txt"
     keys.write_text("0.1 down UP\n")
     out = tmp_path / "s"
+    # the world without near-miss cut-ins: a crash in the first seconds would end the trial before the kill
     proc = subprocess.Popen([sys.executable, "-m", "dt_highway.cli", "drive", "--participant", "P02", "--condition",
-                             "baseline", "--duration", "60", "--out", str(out), "--keys-from", str(keys), *FAST],
+                             "baseline", "--duration", "60", "--out", str(out), "--keys-from", str(keys), *FAST,
+                             "--scenario", "envs/highway-trial-v1.toml"],
                             env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     steps = out / "trials" / "P02-baseline" / "steps.csv"
@@ -154,7 +156,7 @@ def test_pause_stops_the_trial_clock_and_esc_quits_as_aborted(tmp_path):
     assert main([*base, "--condition", "baseline"]) == 0
     assert time.monotonic() - t0 > 2.3  # 1.5 s of driving + 1 s of pause (+ set-up)
     trial = load_trial(out / "trials" / "P03-baseline")
-    assert trial.meta["status"] == "completed" and len(trial.steps) == 24  # 1 + ceil(1.5 * 15): the pause added none
+    assert trial.meta["status"] == "completed" and len(trial.steps) == 23  # ceil(1.5 * 15): the pause added none
     keys.write_text("0.5 down UP\n1.0 down ESC\n")
     assert main([*base, "--condition", "adas"]) == 1
     quit_ = load_trial(out / "trials" / "P03-adas")
@@ -200,7 +202,8 @@ def test_steering_mode_steers_the_ego_across_the_lane(tmp_path):
                  "--keys-from", str(keys), "--steering", *FAST]) == 0
     steps = load_trial(out / "trials" / "P05-baseline").steps
     steer = steps["action_lane"].to_numpy()  # the steering command in steering mode
-    assert steer[:3].max() == 0.0 and steer[round(1.2 * 15)] == pytest.approx(1.0) and steer[-1] == 0.0
+    # row k is the step that ends at t = (k + 1) / 15
+    assert steer[:3].max() == 0.0 and steer[round(1.2 * 15) - 1] == pytest.approx(1.0) and steer[-1] == 0.0
     assert steps["y_m"].iloc[-1] > steps["y_m"].iloc[0] + 1.0  # drifted right: no lane keeping pulled it back
 
 

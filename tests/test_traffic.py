@@ -33,13 +33,13 @@ def test_lateral_speeds_by_driver_type():
     env.close()
 
 
-def test_trial_scenario_cuts_into_the_ego_lane_several_times_a_minute():
+def test_trial_scenario_cuts_into_the_ego_lane_every_minute():
     from pathlib import Path
 
     scenario = Path(__file__).resolve().parents[1] / "envs" / "highway-trial.toml"
     cfg = load_config(scenario, ["ego.autopilot=true", "twin.preroll_s=0", "highway.duration=60"])
     completed, minutes = 0, 0.0
-    for seed in (1, 2):
+    for seed in (1, 2, 3):
         env = DTHighwayEnv(config=cfg.to_dict())
         env.reset(seed=seed)
         pending: dict[int, float] = {}  # cutting vehicle -> time of the attempt
@@ -58,4 +58,5 @@ def test_trial_scenario_cuts_into_the_ego_lane_several_times_a_minute():
             done = term or trunc
         minutes += info["time_s"] / 60.0
         env.close()
-    assert completed / minutes >= 3.0, f"{completed} completed cut-ins in front of the ego in {minutes:.1f} min"
+    # the calibrated scenario: ~1.2 cut-ins on the ego a minute, most of them the near miss (docs: calibration)
+    assert completed / minutes >= 0.9, f"{completed} completed cut-ins in front of the ego in {minutes:.1f} min"

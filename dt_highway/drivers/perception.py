@@ -85,15 +85,32 @@ class Mark:
     """One overlay mark as it is drawn on the screen (:func:`~dt_highway.overlay.draw_overlay`).
 
     :param box: ``(x1, y1, x2, y2)`` [px] in the camera image
-    :param label: its label (``"aggressive driver"``)
+    :param label: its label (``"aggressive driver"``, ``"cutting in from left"``,
+        ``"cutting in from right + aggressive driver"``)
     :param confidence: the twin's confidence shown beside it [-], ``None`` when not shown
     :param distance_m: the distance shown beside it [m], ``None`` when not shown
+
+    :attr:`is_cut_in` and :attr:`side` are what a person reads in the label.
     """
 
     box: tuple[float, float, float, float]
     label: str
     confidence: float | None = None
     distance_m: float | None = None
+
+    @property
+    def is_cut_in(self) -> bool:
+        """The label warns of a car cutting into the driver's lane ("CUTTING IN")."""
+        return self.label.lower().startswith("cutting in")
+
+    @property
+    def side(self) -> int:
+        """The side the label says a cutting-in car comes from, as a lane offset: ``-1`` left,
+        ``+1`` right, ``0`` not said (or not a cut-in warning)."""
+        text = self.label.lower()
+        if not self.is_cut_in:
+            return 0
+        return -1 if "from left" in text else 1 if "from right" in text else 0
 
 
 @dataclass(frozen=True)

@@ -35,11 +35,34 @@ The human-like driver (parameters in ``agents/human.toml``):
   not braking for a car that is not yet in its lane). These responses are our assumptions
   about a warned driver, not fitted to the paper's results.
 
-  The ease-off limit was added after the first 30-pair study (README): with comfortable
+  The ease-off limit was added after the first 30-pair study (docs: safety study): with comfortable
   braking (1.67 m/s^2) allowed there, the warned driver matched its speed to a marked car
   hovering in the next lane, and an aggressive driver positioning itself for a cut-in slowed
   with it, so that the ego went from 68 to 35 km/h with its own lane clear ahead: not what a
   person does on a highway.
+* a threat cue ("CUTTING IN", ``overlay.mode = threat`` or ``both``): the driver reads the label
+  and the side it names, and takes for the cutting-in car the marked car it sees on that side
+  (in the lane next to it on that side, or already in its own lane) whose distance best matches
+  the one printed on the mark. While the cue is shown and for ``alert_hold_s`` after, it
+
+  - **covers the brake**: its foot leaves the throttle (no acceleration above 0) and its reaction
+    time becomes ``T' x THREAT_REACTION_FACTOR``. The factor is Green's (2000, "How long does it
+    take to stop? Methodological analysis of driver perception-brake times", Transportation
+    Human Factors 2(3), 195-216) ratio of the brake reaction time of a driver who expects the
+    signal (about 0.70-0.75 s) to that of an unexpected but common one such as a lead car's brake
+    lights (about 1.25 s; a surprise event: about 1.5 s): 0.73 / 1.25 = 0.58, rounded to 0.6, so
+    ``T' = 1.0 s`` becomes 0.6 s (shorter than the 0.7 s of the driver-type warning, which is our
+    assumption, not a measured value);
+  - **opens the gap** to that car: while it is ahead (in the next lane or already in the own
+    lane) the driver follows it as if it were its leader, with the warned time gap
+    (``T x alert_headway_factor``), braking up to IDM's comfortable deceleration ``b``
+    (``THREAT_BRAKE`` x ``b``, 1.67 m/s^2 in the file; Treiber, Hennecke & Helbing 2000) instead of
+    only lifting off the throttle (``alert_ease_off_mps2``): the twin predicts this car will
+    move in within the horizon, so the driver makes room before it does. That braking level is
+    our assumption (a comfortable, not an emergency, deceleration).
+
+  The driver-type cue ("AGGRESSIVE DRIVER") keeps the response above; both apply when a car
+  carries both.
 """
 
 from __future__ import annotations
@@ -114,6 +137,12 @@ class HumanDriver(Driver):
     """
 
     senses = SenseRequest(surroundings=True, marks=True)
+    THREAT_REACTION_FACTOR = 0.6
+    """Reaction time multiplier under a threat cue [-]: expected / unexpected brake reaction time,
+    0.73 s / 1.25 s (Green 2000), rounded"""
+    THREAT_BRAKE = 1.0
+    """Strongest deceleration used to open the gap to a cutting-in car, as a multiple of IDM's
+    comfortable deceleration ``b`` [-] (our assumption: comfortable braking)"""
 
     def __init__(self, name: str, params: HumanParams | None = None) -> None:
         super().__init__(name)
@@ -123,7 +152,10 @@ class HumanDriver(Driver):
         self._w = np.zeros(2)
         self._last_change_s = -math.inf
         self._alert_until_s = -math.inf
+        self._threat_until_s: dict[int, float] = {}
         self._t_prev: float | None = None
+        self.reaction_s = self.p.reaction_time_s
+        """The reaction time used at the last decision [s]"""
 
     def params(self) -> dict[str, Any]:
         return self.p.model_dump()
@@ -134,7 +166,9 @@ class HumanDriver(Driver):
         self._w = self.rng.normal(0.0, 1.0, 2)  # stationary start of the error processes
         self._last_change_s = -math.inf
         self._alert_until_s = -math.inf
+        self._threat_until_s = {}
         self._t_prev = None
+        self.reaction_s = self.p.reaction_time_s
 
     def _advance_errors(self, dt: float) -> None:
         """Ornstein-Uhlenbeck step of the two unit-variance estimation errors."""
@@ -150,6 +184,44 @@ class HumanDriver(Driver):
         closing = closing_mps - seen.gap_m * self.p.inverse_ttc_error_per_s * self._w[1]
         return max(gap - delay_s * closing, 0.1), closing  # anticipation over the reaction time
 
+    @staticmethod
+    def threat_cars(perception: Perception, now: Surroundings) -> set[int]:
+        """The cars a person takes the "CUTTING IN" cues for: for each such mark, the marked car on
+        the side the label names (the lane next to the driver's on that side, or its own lane)
+        whose distance best matches the one printed on the mark (the nearest when none is printed).
+
+        :param perception: what the driver perceives (marks, the cars it sees them on)
+        :param now: its surroundings now
+        :return: their ids
+        """
+        out = set()
+        for mark in perception.marks:
+            if not mark.is_cut_in:
+                continue
+            lanes = (mark.side, 0) if mark.side else (-1, 0, 1)
+            seen = [vid for vid in perception.cars_under_marks if vid in now.x_of and now.x_of[vid][1] in lanes]
+            if seen:
+                shown = mark.distance_m
+                out.add(min(seen, key=lambda vid: abs(now.x_of[vid][0] - shown) if shown is not None
+                            else abs(now.x_of[vid][0])))
+        return out
+
+    def _warnings(self, perception: Perception, now: Surroundings) -> tuple[bool, set[int]]:
+        """Update the warning state: whether the driver is warned, and the cutting-in cars it watches."""
+        p = self.p
+        marked = perception.cars_under_marks
+        near = [vid for vid in marked if vid in now.x_of and (
+            (now.x_of[vid][1] == 0 and 0 < now.x_of[vid][0] <= p.alert_ahead_m)
+            or (abs(now.x_of[vid][1]) == 1 and -p.alert_behind_m <= now.x_of[vid][0] <= p.alert_ahead_m))]
+        for vid in self.threat_cars(perception, now):
+            self._threat_until_s[vid] = now.t_s + p.alert_hold_s
+        self._threat_until_s = {vid: t for vid, t in self._threat_until_s.items() if now.t_s <= t}
+        if near:
+            self._alert_until_s = max(self._alert_until_s, now.t_s + p.alert_hold_s)
+        if self._threat_until_s:
+            self._alert_until_s = max(self._alert_until_s, *self._threat_until_s.values())
+        return now.t_s <= self._alert_until_s, set(self._threat_until_s)
+
     def act(self, perception: Perception) -> np.ndarray:
         p = self.p
         now = _surroundings(perception)
@@ -158,13 +230,9 @@ class HumanDriver(Driver):
         self._advance_errors(dt)
         self._memory.append(now)
         marked = perception.cars_under_marks
-        near = [vid for vid in marked if vid in now.x_of and (
-            (now.x_of[vid][1] == 0 and 0 < now.x_of[vid][0] <= p.alert_ahead_m)
-            or (abs(now.x_of[vid][1]) == 1 and -p.alert_behind_m <= now.x_of[vid][0] <= p.alert_ahead_m))]
-        if near:
-            self._alert_until_s = now.t_s + p.alert_hold_s
-        alert = now.t_s <= self._alert_until_s
-        delay = p.reaction_time_s * (p.alert_reaction_factor if alert else 1.0)
+        alert, threats = self._warnings(perception, now)
+        factor = self.THREAT_REACTION_FACTOR if threats else p.alert_reaction_factor if alert else 1.0
+        delay = self.reaction_s = p.reaction_time_s * factor
         while len(self._memory) > 1 and self._memory[1].t_s <= now.t_s - delay + 1e-9:
             self._memory.popleft()
         seen = self._memory[0]  # what it saw a reaction time ago
@@ -182,11 +250,25 @@ class HumanDriver(Driver):
                     g, c = self._estimate(other, age, v - other.speed_mps)
                     shadow = idm_accel(v, g, c, p.idm, v0, t_gap)
                     accel = min(accel, max(shadow, -p.alert_ease_off_mps2))
+        if threats:
+            accel = min(accel, self._open_gap(seen, threats, age, v, v0, t_gap))
         may_change = now.t_s - self._last_change_s >= p.min_lane_change_interval_s
         lane = self._lane_change(seen, accel, v, v0, t_gap, age) if may_change else 0
         if lane:
             self._last_change_s = now.t_s
         return np.array([np.clip(accel, ACCEL_MIN_MPS2, ACCEL_MAX_MPS2), float(lane)])
+
+    def _open_gap(self, seen: Surroundings, threats: set[int], age: float, v: float, v0: float, t_gap: float) -> float:
+        """Under a threat cue: foot off the throttle, and the gap opened to a cutting-in car ahead
+        as if it were the leader (comfortable braking at most) [m/s^2]."""
+        accel = 0.0  # covers the brake
+        for off in (-1, 0, 1):
+            other = seen.ahead[off]
+            if other.vehicle_id in threats:
+                g, c = self._estimate(other, age, v - other.speed_mps)
+                shadow = idm_accel(v, g, c, self.p.idm, v0, t_gap)
+                accel = min(accel, max(shadow, -self.THREAT_BRAKE * self.p.idm.comfort_decel_mps2))
+        return accel
 
     def _lane_change(self, seen: Surroundings, accel_now: float, v: float, v0: float, t_gap: float, age: float) -> int:
         """MOBIL: the side lane whose incentive beats the threshold, if safe for its new follower."""

@@ -48,7 +48,7 @@ from dt_highway.env.observations import (
     OverlayKinematics,
     TwinTaggedKinematics,
 )
-from dt_highway.metrics.safety import SafetyMonitor
+from dt_highway.metrics.safety import CutIn, SafetyMonitor
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.perception import Detector, Fusion, SimulatedDetector
 from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
@@ -118,6 +118,7 @@ class DTHighwayEnv(HighwayEnv):
         self._built_for: tuple[str, str, int] | None = None
         self._world_seed: int | None = None
         self._events: list[TrafficEvent] = []
+        self._aimed_cut_ins: dict[int, tuple[float, str]] = {}  # driver -> (time [s], style) of its last cut-in on the ego
         self.camera: CameraRenderer | None = None
         self._camera_key: tuple[str, RoadScene] | None = None
         self._frame: tuple[CameraImage, CameraTruth] | None = None
@@ -263,7 +264,7 @@ class DTHighwayEnv(HighwayEnv):
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))
-        names = ("traffic", "uplink", "downlink", "detector", "fusion")
+        names = ("traffic", "uplink", "downlink", "detector", "fusion", "overlay")  # appended: the others keep their streams
         seeds = np.random.SeedSequence(seed).spawn(len(names))
         return {n: np.random.default_rng(s) for n, s in zip(names, seeds, strict=True)}
 
@@ -313,6 +314,7 @@ class DTHighwayEnv(HighwayEnv):
         self.downlink = Downlink(cfg.twin.downlink, rngs["downlink"])
         self.twin_view = None
         self._events = []
+        self._aimed_cut_ins = {}
         preroll_steps = int(round(cfg.twin.preroll_s * cfg.highway.simulation_frequency)) if cfg.traffic.driver_types else 0
         preroll = preroll_steps / cfg.highway.simulation_frequency
         self.sim_time_s = -preroll
@@ -343,7 +345,8 @@ class DTHighwayEnv(HighwayEnv):
         self.adas = None
         if cfg.fusion.enabled:
             assert self.camera is not None  # the config refuses fusion without the camera
-            self.pipeline = AdasPipeline.from_config(cfg, self.camera.camera, rngs["detector"], rngs["fusion"])
+            self.pipeline = AdasPipeline.from_config(cfg, self.camera.camera, rngs["detector"], rngs["fusion"],
+                                                     rngs["overlay"], self.road_map)
             self.detector, self.fusion, self.overlay = self.pipeline.detector, self.pipeline.fusion, self.pipeline.overlay
         else:
             self.pipeline = None
@@ -351,7 +354,7 @@ class DTHighwayEnv(HighwayEnv):
         self.safety.reset()
         self._safety_samples, self._cut_ins = [], []
         self._safety_on = True
-        self._sample_safety()
+        self._sample_safety(log=False)  # the state at t = 0 primes the monitor; samples follow each step
 
     def _build_camera(self) -> None:
         """The camera renderer for this road (kept across episodes while nothing changes)."""
@@ -507,6 +510,8 @@ class DTHighwayEnv(HighwayEnv):
             for ev in self.traffic.drain_events():
                 if ev.kind == "despawn" and self.uplink is not None:
                     self.uplink.forget(ev.vehicle_id)
+                if ev.kind == "cut_in" and ev.other_id == EGO_ID:
+                    self._aimed_cut_ins[ev.vehicle_id] = (ev.time_s, ev.style)
                 self._events.append(ev)
         if self.twin is not None:
             now = self.twin_now_s
@@ -522,19 +527,39 @@ class DTHighwayEnv(HighwayEnv):
         if self._safety_on:
             self._sample_safety()
 
-    def _sample_safety(self) -> None:
-        """The ego's leader, gap, TTC... at this simulation step (evaluation: from the simulator's state)."""
+    def _sample_safety(self, log: bool = True) -> None:
+        """The ego's leader, gap, TTC, 2-D TTC... after this simulation step (evaluation: from the simulator's state).
+
+        :param log: keep the sample (``False``: only prime the monitor, at reset)
+        """
         ego = self.vehicle
         others = [v for v in self.road.vehicles if v is not ego]
         lane_y = float(self.road.network.get_lane(ego.lane_index).position(float(ego.position[0]), 0.0)[1])
         sample, cut_ins = self.safety.sample(round(self.sim_time_s, 9), 1.0 / self.config["simulation_frequency"], ego, lane_y,
                                              others, [vehicle_id(v) for v in others])
-        self._safety_samples.append(sample.to_dict())
-        by_id = {vehicle_id(v): v for v in others} if cut_ins else {}
+        if not log:
+            return
+        row = sample.to_dict()
+        by_id = {vehicle_id(v): v for v in others} if cut_ins or sample.collision else {}
+        if sample.collision is not None:  # the crash partner's true type: evaluation (logs, report) only
+            partner = by_id.get(sample.collision.partner_id)
+            row["collision"]["partner_type"] = driver_type(partner) if partner is not None else None
+        self._safety_samples.append(row)
         for c in cut_ins:
             # the cutting driver's true type is for evaluation (logs, report) only
-            self._cut_ins.append({"t_s": c.t_s, "vehicle_id": c.vehicle_id, "gap_m": c.gap_m,
-                                  "driver_type": driver_type(by_id[c.vehicle_id])})
+            self._cut_ins.append({**c.to_dict(), "driver_type": driver_type(by_id[c.vehicle_id]),
+                                  "maneuver": self._maneuver(c)})
+
+    AIMED_CUT_IN_S = 8.0
+    """A lane entry in front of the ego is the traffic's cut-in on it when that driver aimed one at it this recently [s]"""
+
+    def _maneuver(self, cut_in: CutIn) -> str:
+        """The traffic's manoeuvre behind a lane entry in front of the ego (evaluation): ``gentle`` or
+        ``dangerous`` for a cut-in the driver aimed at the ego, else empty (a lane change of its own)."""
+        aimed = self._aimed_cut_ins.get(cut_in.vehicle_id)
+        if aimed is None or not 0.0 <= cut_in.t_s - aimed[0] <= self.AIMED_CUT_IN_S:
+            return ""
+        return aimed[1]
 
     # ------------------------------------------------------------------ info
     def _info(self, obs: Any, action: Any = None) -> dict:
@@ -601,10 +626,12 @@ class DTHighwayEnv(HighwayEnv):
         view = self.twin_view.vehicles if self.twin_view is not None else ()
         image, truth = self._camera_frame()
         assert self.pipeline is not None  # adas_output() runs this only with the fusion on
-        return self.pipeline.run(image, truth, view, self.twin_now_s, self.sim_time_s)
+        lane = self.vehicle.lane_index  # the ego knows its own lane (threat marks: cars cutting into it)
+        return self.pipeline.run(image, truth, view, self.twin_now_s, self.sim_time_s, int(lane[2]) if lane else -1)
 
     def _twin_info(self) -> list[dict[str, Any]] | None:
-        """The delivered twin view with times on the episode clock [s] and ages [s]."""
+        """The delivered twin view with times on the episode clock [s] and ages [s], and each vehicle's
+        lane-change intents (``horizon_s``, ``p_change``, ``target_lane``, ``p_target``; empty without any)."""
         view = self.twin_view
         if view is None:
             return None
@@ -621,6 +648,10 @@ class DTHighwayEnv(HighwayEnv):
                 "tag": v.tag,
                 "confidence": v.confidence,
                 "n_sudden": v.n_sudden,
+                "intents": [
+                    {"horizon_s": i.horizon_s, "p_change": i.p_change, "target_lane": i.target_lane, "p_target": i.p_target}
+                    for i in v.intents
+                ],
             }
             for v in view.vehicles
         ]

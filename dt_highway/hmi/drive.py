@@ -30,13 +30,12 @@ import gymnasium as gym
 import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
-from dt_highway.config import ConfigError, DTConfig, load_config
+from dt_highway.conditions import condition_config, display_name
+from dt_highway.config import DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
 from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 from dt_highway.overlay import draw_overlay
-
-CONDITIONS = ("baseline", "adas")
 
 LEGEND = (
     ("Up", "throttle (hold)"),
@@ -51,15 +50,17 @@ LEGEND = (
 
 def drive_config(condition: str, steering: bool = False) -> dict[str, Any]:
     """What a keyboard trial changes in the configuration: the ``Driver`` action with one
-    decision per simulation step (the keys act at once), the camera in both conditions (it is
-    the participant's view, and the observation), the fusion and its overlay in ``adas`` only."""
-    if condition not in CONDITIONS:
-        raise ConfigError(f"unknown condition {condition!r} (allowed: {', '.join(CONDITIONS)})")
+    decision per simulation step (the keys act at once), the camera in every condition (it is
+    the participant's view, and the observation), the fusion and its overlay as the condition says
+    (:func:`~dt_highway.conditions.condition_config`: ``adas``, ``adas-threat``, ``sham``...).
+
+    :raises ConfigError: on an unknown condition (one line naming the allowed ones)
+    """
+    cond = condition_config(condition)
     # the window shows the camera frame: as observation it costs nothing more (one rendering
     # per step), where highway-env's Kinematics table would cost ~10 ms a step with 50 vehicles
     action: dict[str, Any] = {"type": "Driver", "steering": True} if steering else {"type": "Driver"}
-    return {"highway": {"action": action, "observation": {"type": "Camera"}}, "camera": {"enabled": True},
-            "fusion": {"enabled": condition == "adas"}}
+    return deep_merge(cond, {"highway": {"action": action, "observation": {"type": "Camera"}}, "camera": {"enabled": True}})
 
 
 @dataclass
@@ -70,7 +71,8 @@ class Hud:
     :param lane: lane number, 1 = leftmost
     :param n_lanes: lanes on the road
     :param time_left_s: trial time left [s]
-    :param condition: condition name (``practice`` for a practice trial)
+    :param condition: the condition's name as the participant is told it (``baseline`` or ``adas``: a
+        sham condition shows ``adas``; ``practice`` for a practice trial)
     :param paused: the trial is paused
     """
 
@@ -153,7 +155,7 @@ class DriveOptions:
     """One keyboard trial.
 
     :param participant: participant id
-    :param condition: ``baseline`` or ``adas``
+    :param condition: one of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``, ``sham``...)
     :param out: the study directory (the trial goes to ``<out>/trials/<participant>-<condition>``)
     :param practice: a practice trial (``<participant>-practice``; left out of the report)
     :param scenario: scenario file
@@ -548,7 +550,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     directory = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
     shots_dir = opts.screenshots or directory / "screenshots"
     scripted = opts.keys_from is not None
-    label = "practice" if opts.practice else opts.condition
+    label = "practice" if opts.practice else display_name(opts.condition)  # a sham is shown as adas: blind
     caption = f"dt-highway: {opts.participant} {label}"
 
     env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")

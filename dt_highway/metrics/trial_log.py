@@ -3,17 +3,22 @@
 * ``meta.json``: driver, participant, condition, seed, resolved config, package version,
   start and end time, end reason, and ``status`` (``running`` while the trial runs, then
   ``completed`` or ``aborted``). Written at the start and replaced atomically at the end.
-* ``steps.csv``: one row per simulation step (the ego's state, leader gap, closing speed,
-  TTC..., the driver's action or keys held, what the overlay showed), appended and flushed
+* ``steps.csv``: one row per simulation step, the state after it (the ego's state, leader gap,
+  closing speed, TTC, 2-D TTC..., the driver's action or keys held, what the overlay showed;
+  a trial of ``T`` s at ``f`` Hz has ``T f`` rows, ``t = 1/f ... T``), appended and flushed
   as the trial runs: a process killed outright loses at most the rows since the last flush
   (:attr:`TrialWriter.flush_every_s` of simulated time, 1 s by default).
 * ``events.jsonl``: one JSON object per line (cut-ins with the vehicle's id and true type,
-  overlay shown/hidden, collisions, lane changes, key presses), flushed as they come.
+  overlay shown/hidden, collisions with the partner's id, true type and the kind, lane
+  changes, key presses), flushed as they come.
 
 :func:`load_trial` reads a trial back: steps as a pandas DataFrame (a torn last line, left
 by a killed process, is dropped), events and metadata; a trial whose process died while
-``running`` reads as ``aborted``. Parquet is written on request after the trial completes
-(never during it: a Parquet file is unreadable until closed).
+``running`` reads as ``aborted``; an unreadable ``meta.json`` or ``steps.csv`` is a
+:class:`TrialLogError` naming the file. :func:`check_trial` says why a trial read back cannot
+enter a study's statistics (not completed, rows missing, columns missing or not numbers...).
+Parquet is written on request after the trial completes (never during it: a Parquet file is
+unreadable until closed).
 """
 
 from __future__ import annotations
@@ -23,9 +28,11 @@ import io
 import json
 import os
 import socket
+import subprocess
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -35,15 +42,37 @@ import pandas as pd
 
 from dt_highway._version import __version__
 from dt_highway.jsonio import json_safe
+from dt_highway.metrics.overlay_metrics import overlay_metrics
 from dt_highway.metrics.safety import trial_metrics
 
 META, STEPS, EVENTS = "meta.json", "steps.csv", "events.jsonl"
 STEP_COLUMNS = (
     "t_s", "x_m", "y_m", "lane", "speed_mps", "accel_mps2", "leader_id", "gap_m", "closing_mps", "ttc_s",
-    "drac_mps2", "headway_s", "crashed", "action_accel_mps2", "action_lane", "keys", "overlay_ids",
-    "overlay_labels",
+    "drac_mps2", "headway_s", "crashed", "ttc_contact", "ttc2d_s", "ttc2d_id", "ttc2d_contact", "action_accel_mps2",
+    "action_lane", "keys", "overlay_ids", "overlay_labels",
 )
 """Columns of ``steps.csv`` (units in the names; see :mod:`dt_highway.metrics.safety`)"""
+TEXT_COLUMNS = ("keys", "overlay_ids", "overlay_labels")
+"""The columns of ``steps.csv`` that hold text (may be empty)"""
+BOOL_COLUMNS = ("crashed", "ttc_contact", "ttc2d_contact")
+"""The columns of ``steps.csv`` that hold ``True``/``False``"""
+FILLED_COLUMNS = ("t_s", "x_m", "y_m", "lane", "speed_mps", "accel_mps2")
+"""The columns of ``steps.csv`` that every row fills (never empty or NaN)"""
+PACKAGE_DIR = Path(__file__).resolve().parents[2]
+"""The directory that holds the ``dt_highway`` package (a git checkout's top, when run from one)"""
+
+
+class TrialLogError(ValueError):
+    """A trial's ``meta.json`` or ``steps.csv`` that cannot be read.
+
+    :param file: the file
+    :param reason: what is wrong with it, in a few words
+    """
+
+    def __init__(self, file: Path, reason: str) -> None:
+        super().__init__(f"{file}: {reason}")
+        self.file = file
+        self.reason = f"{file.name} {reason}"
 
 
 def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
@@ -54,6 +83,27 @@ def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
 
 def _version() -> str:
     return __version__
+
+
+@cache
+def git_commit(directory: Path = PACKAGE_DIR) -> str | None:
+    """The git commit the package runs from (``git rev-parse HEAD`` in its checkout), with
+    ``-dirty`` when tracked files differ from it; ``None`` for an installed package (no ``.git``)
+    or without git.
+
+    :param directory: the checkout's top directory
+    """
+    if not (directory / ".git").exists():
+        return None
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=directory, capture_output=True, text=True, timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=directory,
+                               capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if head.returncode != 0 or not head.stdout.strip():
+        return None
+    return head.stdout.strip() + ("-dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
 
 
 class TrialWriter:
@@ -70,7 +120,7 @@ class TrialWriter:
         for name in (STEPS, EVENTS, "steps.parquet"):
             (self.dir / name).unlink(missing_ok=True)
         self.meta = {
-            **meta, "status": "running", "package_version": _version(), "pid": os.getpid(),
+            **meta, "status": "running", "package_version": _version(), "git_commit": git_commit(), "pid": os.getpid(),
             "host": socket.gethostname(), "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "end_time": None, "end_reason": None, "n_steps": 0,
         }
@@ -183,9 +233,25 @@ class Trial:
         """The cut-in events."""
         return [e for e in self.events if e.get("kind") == "cut_in"]
 
+    @property
+    def collisions(self) -> list[dict[str, Any]]:
+        """The collision events."""
+        return [e for e in self.events if e.get("kind") == "collision"]
+
+    @property
+    def planned_duration_s(self) -> float | None:
+        """The trial's configured duration [s] (``None`` when the metadata has no configuration)."""
+        duration = ((self.meta.get("config") or {}).get("highway") or {}).get("duration")
+        return float(duration) if duration is not None else None
+
     def metrics(self) -> dict[str, Any]:
-        """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`)."""
-        return trial_metrics(self.steps, self.dt_s, self.cut_ins)
+        """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`), and the
+        overlay's (:func:`dt_highway.metrics.overlay_metrics.overlay_metrics`) when the log has its columns."""
+        m = trial_metrics(self.steps, self.dt_s, self.cut_ins, collisions=self.collisions,
+                          planned_duration_s=self.planned_duration_s)
+        if "overlay_ids" in self.steps and len(self.steps):
+            m.update(overlay_metrics(self.steps, self.dt_s, self.cut_ins))
+        return m
 
 
 def _complete_lines(path: Path) -> str:
@@ -213,19 +279,37 @@ def load_trial(directory: str | Path) -> Trial:
     :param directory: the trial's directory
     :return: steps (DataFrame), events and metadata
     :raises FileNotFoundError: if it holds no trial (no ``meta.json``)
+    :raises TrialLogError: if its ``meta.json`` or ``steps.csv`` cannot be read
     """
     d = Path(directory)
     meta_path = d / META
     if not meta_path.exists():
         raise FileNotFoundError(f"not a trial directory (no {META}): {d}")
-    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise TrialLogError(meta_path, f"is not valid JSON ({exc.msg.removesuffix(' at')}, line {exc.lineno} "
+                                       f"column {exc.colno})") from None
+    except UnicodeDecodeError:
+        raise TrialLogError(meta_path, "is not UTF-8 text") from None
+    except OSError as exc:
+        raise TrialLogError(meta_path, f"cannot be read ({exc.strerror or exc})") from None
+    if not isinstance(meta, dict):
+        raise TrialLogError(meta_path, f"holds a JSON {type(meta).__name__}, not an object")
     if meta.get("status") == "running" and not _alive(meta.get("pid"), meta.get("host")):
         meta["status"] = "aborted"
         meta["end_reason"] = meta.get("end_reason") or "the process ended while the trial was running"
-    text = _complete_lines(d / STEPS)
+    try:
+        text = _complete_lines(d / STEPS)
+    except OSError as exc:
+        raise TrialLogError(d / STEPS, f"cannot be read ({exc.strerror or exc})") from None
     if text.strip():
-        steps = pd.read_csv(io.StringIO(text), keep_default_na=False, na_values=["", "nan", "NaN"],
-                            dtype={"keys": str, "overlay_ids": str, "overlay_labels": str})
+        _check_fields(d / STEPS, text)
+        try:
+            steps = pd.read_csv(io.StringIO(text), keep_default_na=False, na_values=["", "nan", "NaN"],
+                                dtype=dict.fromkeys(TEXT_COLUMNS, str), index_col=False)
+        except (ValueError, pd.errors.ParserError) as exc:  # ParserError, EmptyDataError, a bad dtype
+            raise TrialLogError(d / STEPS, f"is not a readable CSV ({str(exc).strip().splitlines()[-1]})") from None
     else:
         steps = pd.DataFrame(columns=list(STEP_COLUMNS))
     events = []
@@ -236,6 +320,108 @@ def load_trial(directory: str | Path) -> Trial:
             except json.JSONDecodeError:
                 continue
     return Trial(steps, events, meta, d)
+
+
+def _check_fields(path: Path, text: str) -> None:
+    """:raises TrialLogError: when a line of the CSV ``text`` has another number of fields than its header"""
+    width = None
+    try:
+        for lineno, fields in enumerate(csv.reader(io.StringIO(text)), start=1):
+            if not fields:
+                continue  # a blank line: skipped by the reader too
+            if width is None:
+                width = len(fields)
+            elif len(fields) != width:
+                raise TrialLogError(path, f"is not a readable CSV (line {lineno} has {len(fields)} fields, "
+                                          f"the header {width})")
+    except csv.Error as exc:
+        raise TrialLogError(path, f"is not a readable CSV ({exc})") from None
+
+
+def expected_rows(duration_s: float, simulation_hz: float, policy_hz: float | None = None) -> int:
+    """Rows of ``steps.csv`` of a trial that ran its whole duration: one per simulation step.
+
+    highway-env ends an episode at the first policy step at which its clock, advanced by
+    ``1 / policy_hz`` per step, reaches ``duration_s``; each policy step is
+    ``simulation_hz / policy_hz`` simulation steps (120 s at 15 Hz: 1800 rows).
+
+    :param duration_s: the configured duration [s]
+    :param simulation_hz: simulation frequency [Hz]
+    :param policy_hz: policy frequency [Hz] (``None``: one decision per simulation step)
+    :return: the number of rows
+    """
+    policy_hz = policy_hz or simulation_hz
+    clock, steps = 0.0, 0
+    while clock < duration_s:  # the same float sums as highway-env's clock
+        clock += 1 / policy_hz
+        steps += 1
+    return steps * int(simulation_hz // policy_hz)
+
+
+def _not_numbers(steps: pd.DataFrame) -> str | None:
+    """Why the step columns do not hold what they should (numbers, True/False, filled), or ``None``."""
+    for c in STEP_COLUMNS:
+        if c in TEXT_COLUMNS:
+            continue
+        col = steps[c]
+        if c in FILLED_COLUMNS + BOOL_COLUMNS and col.isna().any():
+            return f"steps.csv column {c} is empty at line {int(np.flatnonzero(col.isna().to_numpy())[0]) + 2}"
+        ok = pd.api.types.is_bool_dtype(col) if c in BOOL_COLUMNS else pd.api.types.is_numeric_dtype(col)
+        if not ok:
+            good = (col.astype(str).isin(["True", "False"]) if c in BOOL_COLUMNS
+                    else pd.to_numeric(col, errors="coerce").notna())
+            bad = np.flatnonzero((~good & col.notna()).to_numpy())
+            where = f": line {int(bad[0]) + 2} holds {str(col.iloc[bad[0]])[:20]!r}" if len(bad) else ""
+            return f"steps.csv column {c} is not {'True/False' if c in BOOL_COLUMNS else 'numbers'}{where}"
+    return None
+
+
+def check_trial(trial: Trial) -> str | None:
+    """Why a trial read back cannot enter a study's statistics, or ``None`` when it can.
+
+    It can when it is ``completed``, its ``steps.csv`` has every column of :data:`STEP_COLUMNS`
+    with numbers (``True``/``False`` in :data:`BOOL_COLUMNS`), as many rows as the
+    configured duration makes (:func:`expected_rows`; fewer only when a collision ended it, the
+    last row crashed: a trial *cut short*), as many as ``meta.json`` counts written, and its
+    times are one row per simulation step (``t = k / f``).
+
+    :param trial: the trial (:func:`load_trial`)
+    :return: the reason, in a few words (``"steps.csv has 450 rows, 900 expected (60 s at 15 Hz)..."``)
+    """
+    meta, steps = trial.meta, trial.steps
+    if meta.get("status") != "completed":
+        why = meta.get("end_reason")
+        return f"status {meta.get('status') or 'missing'}" + (f" ({why})" if why else "")
+    if not (trial.path / STEPS).exists():
+        return "steps.csv missing"
+    missing = [c for c in STEP_COLUMNS if c not in steps.columns]
+    if missing:
+        return f"steps.csv lacks column{'s' if len(missing) > 1 else ''} {', '.join(missing)}"
+    if not len(steps):
+        return "steps.csv has no rows"
+    bad = _not_numbers(steps)
+    if bad:
+        return bad
+    n = len(steps)
+    written = meta.get("n_steps")
+    if isinstance(written, int) and written != n:
+        return f"steps.csv has {n} rows, meta.json counts {written} written"
+    duration, hz = trial.planned_duration_s, meta.get("simulation_frequency_hz")
+    if duration is None or not isinstance(hz, (int, float)) or hz <= 0:
+        return ("meta.json lacks the configured duration or simulation frequency (config.highway.duration, "
+                "simulation_frequency_hz)")
+    policy_hz = ((meta.get("config") or {}).get("highway") or {}).get("policy_frequency")
+    want = expected_rows(duration, float(hz), float(policy_hz) if policy_hz else None)
+    crashed_at_end = bool(steps["crashed"].iloc[-1])
+    if n > want or (n < want and not crashed_at_end):
+        return (f"steps.csv has {n} rows, {want} expected ({duration:g} s at {float(hz):g} Hz)"
+                + (": truncated" if n < want else ""))
+    t = steps["t_s"].to_numpy(float)
+    off = np.abs(t - np.arange(1, n + 1) / float(hz))
+    if np.nanmax(off) > 0.5 / float(hz) or np.isnan(off).any():
+        k = int(np.argmax(np.where(np.isnan(off), np.inf, off)))
+        return f"steps.csv times are not one row per step: line {k + 2} has t = {t[k]:g} s, {(k + 1) / float(hz):g} expected"
+    return None
 
 
 class TrialRecorder:
@@ -268,15 +454,18 @@ class TrialRecorder:
         for vid in self.shown.keys() - now.keys():
             log.event("overlay_hidden", t, vehicle_id=vid)
         self.shown = now
-        for c in info["safety"]["cut_ins"]:
-            log.event("cut_in", c["t_s"], vehicle_id=c["vehicle_id"], driver_type=c["driver_type"],
-                      gap_m=c["gap_m"], marked=c["vehicle_id"] in now)
+        for c in info["safety"]["cut_ins"]:  # vehicle_id, gap_m, t_lane_s, driver_type, maneuver...
+            fields = {"maneuver": "", **{k: v for k, v in c.items() if k != "t_s"}}
+            log.event("cut_in", c["t_s"], **fields, marked=c["vehicle_id"] in now)
         ids = sorted(now)
         for s in info["safety"]["samples"]:
             if self._lane is not None and s["lane"] != self._lane:
                 log.event("lane_change", s["t_s"], from_lane=self._lane, to_lane=s["lane"])
             if s["crashed"] and not self._crashed:
-                log.event("collision", s["t_s"], leader_id=s["leader_id"])
+                col = s.get("collision") or {}
+                log.event("collision", s["t_s"], leader_id=s["leader_id"], partner_id=col.get("partner_id", -1),
+                          partner_type=col.get("partner_type"), collision_kind=col.get("kind", "unknown"),
+                          lane_changer=col.get("lane_changer"), striker=col.get("striker"))
             self._lane, self._crashed = s["lane"], bool(s["crashed"])
             log.step({**s, "action_accel_mps2": float(action[0]), "action_lane": float(action[1]), "keys": keys,
                       "overlay_ids": ";".join(str(v) for v in ids), "overlay_labels": ";".join(now[v] for v in ids)})

@@ -203,6 +203,37 @@ def overlapping(a: Footprint, b: Footprint) -> bool:
     return bool(np.all(np.abs(d_m) <= r_m))
 
 
+def penetration_depth_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """How deep each pair of rectangles overlaps now: the smallest ``r - |d|`` over the four axes.
+
+    :param a: ``(N, 7)`` (or ``(1, 7)``, broadcast) footprint array
+    :param b: ``(N, 7)`` footprint array
+    :return: ``(N,)`` depth [m]: ``>= 0`` when the pair touches or overlaps, ``< 0`` when apart
+    """
+    d_m, _, r_m = _separation(a, b)
+    return (r_m - np.abs(d_m)).min(axis=1)
+
+
+CONTACT_AXES = ("a_heading", "a_normal", "b_heading", "b_normal")
+"""Names of the candidate axes :func:`contact_axis` returns the index of"""
+
+
+def contact_axis(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For pairs that touch now, the axis on which their projections met last, going back in time
+    at the current velocities: the faces that made the contact.
+
+    Axis ``0`` (``1``) is ``a``'s heading (normal), ``2`` (``3``) ``b``'s. On a heading axis the
+    contact is through a front or rear face (a rear-end); on a normal axis through a side (a
+    side-swipe). Without relative motion on any axis the answer is ``0``.
+
+    :param a: ``(N, 7)`` (or ``(1, 7)``, broadcast) footprint array
+    :param b: ``(N, 7)`` footprint array
+    :return: ``(N,)`` axis index, one of ``0..3`` (:data:`CONTACT_AXES`)
+    """
+    lo, _ = _axis_intervals_s(*_separation(a, b))
+    return np.argmax(lo, axis=1)
+
+
 def min_ttc_2d(ego: Footprint, others: Sequence[Footprint], horizon_s: float = math.inf) -> tuple[float, int]:
     """The ego's smallest 2-D TTC to any of the others, and which.
 

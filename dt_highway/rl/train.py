@@ -14,9 +14,11 @@ versions, the evaluations and the model file's SHA-256, which is what
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -34,6 +36,7 @@ from stable_baselines3.common.callbacks import (
 )
 from stable_baselines3.common.logger import Logger, make_output_format
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm.auto import tqdm
 
@@ -93,6 +96,46 @@ def build_model(cfg: TrainConfig, env: VecEnv) -> BaseAlgorithm:
         return algo(_policy_name(cfg), env, seed=cfg.seed, device="cpu", verbose=0, **kwargs)
     except (TypeError, ValueError, AssertionError) as err:
         raise ConfigError(f"{cfg.algorithm} does not accept these hyperparameters or policy_kwargs: {err}") from None
+
+
+def rollout_steps(cfg: TrainConfig) -> int:
+    """The env steps stable-baselines3 collects between two checks of the step budget: its
+    ``learn`` stops only at the end of such a chunk, so it trains a multiple of it.
+
+    PPO (on-policy): ``n_steps`` per env times ``n_envs``; DQN (off-policy): ``train_freq``
+    steps per env times ``n_envs`` (one step per env when ``train_freq`` counts episodes).
+
+    :param cfg: training configuration
+    :return: the chunk [env steps]
+    """
+    algo = getattr(sb3, cfg.algorithm)
+    defaults = inspect.signature(algo).parameters
+    try:
+        if issubclass(algo, OnPolicyAlgorithm):
+            return max(1, int(cfg.hyperparameters.get("n_steps", defaults["n_steps"].default))) * cfg.n_envs
+        freq = cfg.hyperparameters.get("train_freq", defaults["train_freq"].default)
+        if isinstance(freq, (list, tuple)):
+            freq = int(freq[0]) if len(freq) == 2 and str(freq[1]) == "step" else 1
+        return max(1, int(freq)) * cfg.n_envs
+    except (TypeError, ValueError):  # a value the algorithm refuses (build_model says so)
+        return cfg.n_envs
+
+
+def round_timesteps(cfg: TrainConfig) -> tuple[TrainConfig, str | None]:
+    """The configuration with ``timesteps`` rounded up to a whole number of :func:`rollout_steps`
+    (what stable-baselines3 trains anyway), and the line that says so (``None``: no change).
+
+    :param cfg: training configuration
+    :return: the configuration to train, the message
+    """
+    chunk = rollout_steps(cfg)
+    total = -(-cfg.timesteps // chunk) * chunk
+    if total == cfg.timesteps:
+        return cfg, None
+    per = "n_steps" if issubclass(getattr(sb3, cfg.algorithm), OnPolicyAlgorithm) else "train_freq"
+    message = (f"--timesteps {cfg.timesteps} rounded up to {total}: {cfg.algorithm} trains whole rollouts of {chunk} "
+               f"steps ({per} {chunk // cfg.n_envs} x {cfg.n_envs} env{'s' if cfg.n_envs > 1 else ''})")
+    return TrainConfig.model_validate({**cfg.model_dump(), "timesteps": total}), message
 
 
 class HeldOutEval(BaseCallback):
@@ -155,13 +198,10 @@ class _Progress(BaseCallback):
         self.total = total
 
     def _on_training_start(self) -> None:
-        self.bar = tqdm(total=self.total, unit="step", desc="training", dynamic_ncols=True)
+        self.bar = tqdm(total=self.total, unit="step", desc="training", dynamic_ncols=True, file=sys.stderr, leave=False)
 
     def _on_step(self) -> bool:
-        n = self.training_env.num_envs
-        if self.bar.n + n > self.bar.total:  # the algorithm finishes its last rollout
-            self.bar.total = self.bar.n + n
-        self.bar.update(n)
+        self.bar.update(min(self.training_env.num_envs, self.bar.total - self.bar.n))  # one bar, never past its total
         return True
 
     def _on_training_end(self) -> None:
@@ -182,7 +222,8 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
 
     :param cfg: training configuration
     :param out: model file to write (``.zip``); ``<out>.json`` and ``<out>.d/`` go beside it
-    :param timesteps: override of ``cfg.timesteps``
+    :param timesteps: override of ``cfg.timesteps`` (both rounded up to whole rollouts, :func:`round_timesteps`,
+        with a line on stderr)
     :param n_envs: override of ``cfg.n_envs``
     :param tensorboard_dir: also write TensorBoard logs there (needs the ``tensorboard`` package)
     :param progress: show a progress bar
@@ -220,6 +261,9 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     interrupted = False
     try:
         model = build_model(cfg, venv)
+        cfg, rounded = round_timesteps(cfg)  # what stable-baselines3 would train anyway: said, and the bar's total
+        if rounded:
+            print(rounded, file=sys.stderr)
         formats = [make_output_format("csv", str(work))]
         if tensorboard_dir is not None:
             formats.append(make_output_format("tensorboard", tensorboard_dir))

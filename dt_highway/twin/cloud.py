@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from dt_highway.config import ConfigError, DownlinkConfig, TwinConfig
-from dt_highway.twin.intention import LaneChangeIntent
+from dt_highway.twin.intention import IntentionEstimator, IntentTable, LaneChangeIntent
 from dt_highway.twin.store import FixStore
 from dt_highway.twin.tagger import DriverRecord, HighwayMap, LaneChange, Tagger
 from dt_highway.twin.uplink import GnssFix
@@ -39,7 +39,9 @@ class TwinVehicleView:
     :param n_sudden: sudden lane changes seen
     :param observed_s: time the twin has observed this driver [s]
     :param intents: the twin's lane-change intention, one per configured horizon (shortest
-        first); empty when the intention model is off
+        first); empty when the intention model is off or the twin has too few recent fixes of
+        the vehicle (fewer than :data:`~dt_highway.twin.intention.MIN_FIXES`, or the newest over
+        :data:`~dt_highway.twin.intention.MAX_AGE_S` old)
     """
 
     vehicle_id: int
@@ -80,15 +82,18 @@ class TwinView:
 
 
 class CloudTwin:
-    """Fix store + tagger, fed by the uplink.
+    """Fix store + tagger + lane-change intention, fed by the uplink.
 
     :param config: twin configuration
     :param road: the map (lane geometry)
+    :param ego_id: the vehicle the twin serves (its position is context for the others' intention)
+    :raises ConfigError: when the intention model cannot be made (weights unreadable, horizons not covered)
     """
 
-    def __init__(self, config: TwinConfig, road: HighwayMap) -> None:
+    def __init__(self, config: TwinConfig, road: HighwayMap, ego_id: int = 0) -> None:
         self.config = config
         self.road = road
+        self.ego_id = ego_id
         self.store = FixStore(config.store.window_s)
         self.tagger = Tagger(config.tagger, road)
         self.now_s = 0.0
@@ -96,8 +101,31 @@ class CloudTwin:
         self._seq = itertools.count()
         self._dirty: set[int] = set()
         self._next_update_s = -math.inf
+        self._intention: IntentionEstimator | None = None
+        self._intention_for: object = None
+        self.intent_table: IntentTable | None = None
+        """The newest intention estimate of every vehicle (``None`` before the first, or with the model off)"""
+        self._next_intent_s = -math.inf
+        self._intention_estimator()
         if config.store.path:
             load_records(config.store.path, self)
+
+    def _intention_estimator(self) -> IntentionEstimator | None:
+        """The estimator of the configured ``twin.intention`` (remade when that section changes)."""
+        cfg = self.config.intention
+        if cfg is not self._intention_for:
+            same = cfg == self._intention_for
+            self._intention_for = cfg
+            if same:
+                return self._intention
+            self._intention = None
+            self.intent_table = None
+            if cfg.enabled:
+                try:
+                    self._intention = IntentionEstimator(cfg, self.road, self.config.tagger.prior_aggressive)
+                except ValueError as exc:
+                    raise ConfigError(f"twin.intention: {exc}") from None
+        return self._intention
 
     def start_episode(self) -> None:
         """Forget raw histories and in-flight fixes (positions of another episode); keep or
@@ -105,6 +133,8 @@ class CloudTwin:
         self.store.clear()
         self._pending.clear()
         self._dirty.clear()
+        self.intent_table = None
+        self._next_intent_s = -math.inf
         if not self.config.store.persist_across_episodes:
             self.tagger.records.clear()
 
@@ -114,7 +144,8 @@ class CloudTwin:
             heapq.heappush(self._pending, (f.arrival_s, next(self._seq), f))
 
     def advance(self, now_s: float) -> None:
-        """Move the twin clock to ``now_s``: store arrived fixes, re-tag at ``update_hz``."""
+        """Move the twin clock to ``now_s``: store arrived fixes, re-tag at ``tagger.update_hz``,
+        estimate the intentions at ``intention.update_hz``."""
         self.now_s = now_s
         arrived = []
         while self._pending and self._pending[0][0] <= now_s:
@@ -127,6 +158,10 @@ class CloudTwin:
                 self.tagger.update(self.store, vid, now_s)
             self._dirty.clear()
             self.store.drop_older_than(now_s - self.config.store.window_s)
+        estimator = self._intention_estimator()
+        if estimator is not None and now_s >= self._next_intent_s:
+            self._next_intent_s = now_s + 1.0 / self.config.intention.update_hz
+            self.intent_table = estimator.estimate(self.store, self.tagger.records, now_s, self.ego_id)
 
     def n_pending(self) -> int:
         """:return: fixes sent but not yet arrived."""
@@ -138,6 +173,7 @@ class CloudTwin:
         if ego is None:
             return ()
         r2 = self.config.downlink.radius_m ** 2
+        table = self.intent_table
         out = []
         for vid in self.store.vehicle_ids():
             if vid == ego_id:
@@ -150,6 +186,7 @@ class CloudTwin:
                 TwinVehicleView(
                     vid, f.t_s, f.x_m, f.y_m, f.speed_mps, f.heading_rad,
                     rec.tag, float(rec.confidence), rec.n_sudden, float(rec.observed_s),
+                    table.intents(vid) if table is not None else (),
                 )
             )
         return tuple(out)
@@ -232,7 +269,10 @@ def load_records(path: str | Path, twin: CloudTwin) -> None:
     """Read driver records written by :func:`save_records` (a missing file is an empty memory)."""
     if not Path(path).exists():
         return
-    con = sqlite3.connect(str(path))
+    try:
+        con = sqlite3.connect(str(path))
+    except sqlite3.Error as exc:
+        raise ConfigError(f"twin.store.path '{path}' cannot be opened: {exc}") from None
     try:
         row = con.execute("SELECT value FROM meta WHERE key = 'now_s'").fetchone()
         if row:

@@ -44,7 +44,7 @@ from dt_highway.perception.learned.model import (
 )
 from dt_highway.perception.learned.weights import save_weights
 
-__all__ = ["TrainSettings", "train", "randomise_colours"]
+__all__ = ["TrainSettings", "train", "check_training", "randomise_colours"]
 
 
 @dataclass(frozen=True)
@@ -189,13 +189,12 @@ def train(
     :param resume: continue from ``<out>.ckpt`` when it exists
     :param progress: called after every step with ``(step, elapsed_s, losses)``
     :return: a summary (steps, frames rendered, elapsed seconds, last losses, resumed)
-    :raises ValueError: if the checkpoint belongs to other settings or cannot be read
+    :raises ValueError: as :func:`check_training`, before any training starts
     """
     out = Path(out)
     ckpt_path = out.with_name(out.name + ".ckpt")
-    _check(arch, settings)
+    state = check_training(out, arch, settings, resume)
     torch.set_num_threads(settings.threads)
-    state = _read_checkpoint(ckpt_path, arch) if resume and ckpt_path.exists() else None
     with torch.random.fork_rng():  # seeded initial weights, without touching the caller's torch RNG
         torch.manual_seed(settings.seed)
         model = PointDetector(arch)
@@ -243,6 +242,39 @@ def train(
     model.eval()
     save_weights(model, out, meta)
     return {**meta, "resumed": state is not None, "checkpoint": str(ckpt_path), "weights": str(out)}
+
+
+def check_training(out: str | Path, arch: Architecture = Architecture(), settings: TrainSettings = TrainSettings(),
+                   resume: bool = True) -> _Resume | None:
+    """Check a training before it starts (:func:`train` does): the settings, the output path
+    and, when resuming, the checkpoint.
+
+    :param out: the weights file to write; its checkpoint is ``<out>.ckpt``
+    :param arch: the network's shape
+    :param settings: the training settings
+    :param resume: continue from ``<out>.ckpt`` when it exists
+    :return: the checkpoint's state to resume from (``None``: training starts anew)
+    :raises ValueError: one line, on a batch, network size or budget that cannot train, an
+        output path that is a directory, a checkpoint that cannot be read or belongs to another
+        network, or one that has already reached ``max_steps`` or the time budget (nothing to train)
+    """
+    out = Path(out)
+    ckpt_path = out.with_name(out.name + ".ckpt")
+    _check(arch, settings)
+    for path in (out, ckpt_path):
+        if path.is_dir():
+            raise ValueError(f"{path} is a directory: --out names the weights file to write, e.g. {out / 'detector.pt'}")
+    if not resume or not ckpt_path.exists():
+        return None
+    state = _read_checkpoint(ckpt_path, arch)
+    fresh = "pass --fresh to start over"
+    if settings.max_steps is not None and state.step >= settings.max_steps:
+        raise ValueError(f"nothing to train: {ckpt_path} already holds {state.step} steps, --max-steps "
+                         f"{settings.max_steps} is reached (raise it to train on, or {fresh})")
+    if state.elapsed_s >= settings.minutes * 60.0:
+        raise ValueError(f"nothing to train: {ckpt_path} already trained {state.elapsed_s / 60.0:.2f} min, --minutes "
+                         f"{settings.minutes:g} is reached (raise it to train on, or {fresh})")
+    return state
 
 
 def _check(arch: Architecture, settings: TrainSettings) -> None:

@@ -1,0 +1,185 @@
+"""Calibrating a trial scenario on the **baseline** condition only (``dt-highway calibrate``).
+
+For every value of one scenario knob (a configuration key, e.g. ``traffic.dangerous.brake_mps2``)
+and every driver, the harness runs ``trials`` paired-seed baseline trials (camera, fusion and
+overlay off: nothing is shown to the driver) through the study runner, and reads back from the
+trial logs:
+
+* ``cut_ins_per_h``: the cut-in manoeuvres aimed at the ego that became its leader, per hour
+  (the cut-in events of the logs whose ``maneuver`` is ``gentle`` or ``dangerous``, i.e. the
+  traffic's own cut-ins on the ego; other lane entries in front of the ego are counted apart);
+* ``cut_in_ttc_median_s``: the median over those cut-ins of the ego's minimum TTC to the
+  cutting car (1-D leader TTC while it leads, within 10 s; capped at 10 s as in the metrics);
+  ``cut_in_ttc_below_1s``: the share of them below 1 s; the same for the dangerous ones alone
+  (``dangerous_*``) and for every lane entry (``entries_*``);
+* ``collisions_per_h`` and ``trials_with_collision``: the ego's collisions, and the trials one cut short;
+* ``conflicts_2d_per_h``: onsets of 2-D TTC below 1.5 s per hour, when the logs have it.
+
+It never runs the ADAS or sham conditions: a scenario is chosen by what its baseline looks like,
+never by the effect a study is meant to measure. Each (driver, value) cell keeps its study
+directory under ``out`` (resumable: a rerun skips the trials already done).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from dt_highway.config import ConfigError, load_config
+from dt_highway.metrics.safety import TTC_CAP_S, cut_in_outcomes
+from dt_highway.metrics.trial_log import Trial, load_trial
+from dt_highway.study import plan, run_study
+
+MANEUVERS = ("gentle", "dangerous")
+"""The ``maneuver`` of a logged cut-in event that the traffic aimed at the ego"""
+
+
+@dataclass(frozen=True)
+class CalibrationCell:
+    """One row of the calibration table: a driver at one value of the knob.
+
+    :param driver: the driver file's stem
+    :param value: the knob's value, as given
+    :param figures: the baseline figures (module docstring)
+    """
+
+    driver: str
+    value: str
+    figures: dict[str, float]
+
+
+def _safe_name(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=-]+", "_", text)
+
+
+def _cut_in_rows(trial: Trial) -> list[dict[str, Any]]:
+    """Every logged cut-in of a trial with its outcome and manoeuvre."""
+    events = trial.cut_ins
+    outcomes = cut_in_outcomes(trial.steps, events)
+    return [{**o, "maneuver": str(e.get("maneuver") or "")} for o, e in zip(outcomes, events, strict=True)]
+
+
+def _ttc_figures(prefix: str, ttc: list[float]) -> dict[str, float]:
+    capped = np.minimum(np.asarray(ttc, dtype=float), TTC_CAP_S)
+    if not len(capped):
+        return {f"{prefix}n": 0.0, f"{prefix}ttc_median_s": math.nan, f"{prefix}ttc_below_1s": math.nan}
+    return {f"{prefix}n": float(len(capped)), f"{prefix}ttc_median_s": float(np.median(capped)),
+            f"{prefix}ttc_below_1s": float(np.mean(capped < 1.0))}
+
+
+def baseline_figures(trials: Sequence[Trial]) -> dict[str, float]:
+    """The calibration figures of a set of baseline trials (module docstring).
+
+    :param trials: the trials, read back
+    :return: figures by name (units in the names; shares in [0, 1])
+    """
+    hours = sum(len(t.steps) * t.dt_s for t in trials) / 3600.0
+    rows = [r for t in trials for r in _cut_in_rows(t)]
+    aimed = [r["min_ttc_s"] for r in rows if r["maneuver"] in MANEUVERS]
+    dangerous = [r["min_ttc_s"] for r in rows if r["maneuver"] == "dangerous"]
+    metrics = [t.metrics() for t in trials]
+    collisions = sum(int(m["collisions"]) for m in metrics)
+    out = {"trials": float(len(trials)), "hours": hours,
+           "cut_ins_per_h": len(aimed) / hours if hours else math.nan,
+           "dangerous_per_h": len(dangerous) / hours if hours else math.nan}
+    out |= _ttc_figures("cut_in_", aimed)
+    out |= _ttc_figures("dangerous_", dangerous)
+    out |= _ttc_figures("entries_", [r["min_ttc_s"] for r in rows])
+    out["collisions_per_h"] = collisions / hours if hours else math.nan
+    out["trials_with_collision"] = float(sum(int(m["collisions"]) > 0 for m in metrics))
+    conflicts = [m.get("conflicts_2d") for m in metrics]
+    if all(c is not None for c in conflicts) and hours:
+        out["conflicts_2d_per_h"] = float(sum(conflicts)) / hours  # type: ignore[arg-type]
+    return out
+
+
+def calibrate(
+    knob: str,
+    values: Sequence[str],
+    drivers: Sequence[str],
+    out: str | Path,
+    trials: int = 10,
+    seed: int = 1000,
+    scenario: str | None = None,
+    overrides: Sequence[str] = (),
+    workers: int = 2,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+) -> list[CalibrationCell]:
+    """Run the baseline trials of every (driver, knob value) and compute their figures.
+
+    :param knob: a configuration key, e.g. ``traffic.dangerous.brake_mps2``
+    :param values: its values, as ``--set`` would take them
+    :param drivers: driver files (``agents/human.toml``, ``agents/idm.toml``)
+    :param out: the calibration directory (one study directory per cell)
+    :param trials: baseline trials per cell [-]
+    :param seed: seed of the first trial (trial ``i`` uses ``seed + i``; keep these seeds apart from
+        the studies that will be run on the scenario)
+    :param scenario: scenario file
+    :param overrides: further ``--set`` strings, for every cell
+    :param workers: parallel trials [-]
+    :param progress: called with each trial's result as it finishes
+    :return: one cell per (driver, value), drivers outermost
+    :raises ConfigError: on a knob or value the configuration refuses (before any trial runs)
+    """
+    if not values:
+        raise ConfigError("calibrate needs at least one value")
+    for v in values:  # refuse a bad key or value before any trial runs
+        load_config(scenario, [*overrides, f"{knob}={v}"])
+    cells = []
+    for driver in drivers:
+        for v in values:
+            directory = Path(out) / f"{_safe_name(Path(driver).stem)}-{_safe_name(knob)}={_safe_name(v)}"
+            specs = plan(directory, driver, ["baseline"], trials, seed, scenario, [*overrides, f"{knob}={v}"])
+            result = run_study(specs, directory, workers=workers, progress=progress)
+            if result.failed:
+                raise ConfigError(f"{len(result.failed)} calibration trial(s) failed, e.g. {result.failed[0]['error']}")
+            figures = baseline_figures([load_trial(s.directory) for s in specs])
+            cells.append(CalibrationCell(Path(driver).stem, v, figures))
+    return cells
+
+
+TABLE_COLUMNS = {
+    "cut_ins_per_h": "cut-ins on the ego [1/h]",
+    "cut_in_ttc_median_s": "median min TTC [s]",
+    "cut_in_ttc_below_1s": "share < 1 s",
+    "dangerous_ttc_median_s": "dangerous: median min TTC [s]",
+    "entries_ttc_median_s": "all lane entries: median min TTC [s]",
+    "collisions_per_h": "collisions [1/h]",
+    "trials_with_collision": "trials with a collision",
+    "conflicts_2d_per_h": "2-D conflicts [1/h]",
+}
+"""The calibration table's columns: figure -> heading"""
+
+
+def calibration_table(cells: Sequence[CalibrationCell], knob: str) -> pd.DataFrame:
+    """The cells as a table: one row per (driver, value), the figures of :data:`TABLE_COLUMNS`."""
+    rows = []
+    for c in cells:
+        row: dict[str, Any] = {"driver": c.driver, knob: c.value}
+        for key, heading in TABLE_COLUMNS.items():
+            if key in c.figures:
+                row[heading] = c.figures[key]
+        row["trials"] = int(c.figures["trials"])
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """A table as GitHub markdown, numbers to two decimals (pandas' ``to_markdown`` needs tabulate,
+    not a dependency: six lines here do it)."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float | np.floating):
+            return "n/a" if math.isnan(v) else f"{v:.2f}"
+        return str(v)
+
+    lines = ["| " + " | ".join(str(c) for c in table.columns) + " |", "|" + "---|" * len(table.columns)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,668 @@
+"""How well the twin predicts lane changes and cut-ins (``dt-highway twin-eval --intent``).
+
+Episodes run with the ego on its IDM autopilot (it keeps its lane). At every simulation step the
+evaluation records the simulator's truth (each connected vehicle's lane and whether its body
+overlaps the ego's lane), every intention estimate the cloud made (its inputs, so that any model
+can be scored on the same data) and every twin view the ego received. Ground truth here is for
+labels and scores only; the twin never sees it.
+
+**Per horizon, every connected vehicle** (the cloud's estimates, 10 per second, episode time
+only): the label is whether the vehicle's lane (highway-env's ``lane_index``: where its centre
+is) changes within ``H`` of the estimate; a vehicle whose track ends before ``H`` without a
+change is left out. Scores: ROC AUC of ``p_change``, precision and recall of
+``p_change >= threshold`` (the operating threshold), and the share of those true warnings whose
+``target_lane`` is the lane the vehicle moved to.
+
+**Cut-ins in front of the ego** (the safety monitor's: a vehicle whose body first overlaps the
+ego's lane and becomes its leader with a bumper gap under 60 m). A **warning** is what the ego
+received: a car in the delivered view with ``p_change`` at the operating horizon ``>= threshold``
+and ``target_lane`` = the ego's lane, whose twin position is within ``DX_WINDOW_M`` of the ego
+(centre to centre, along the road). Warnings of one car separated by less than ``MERGE_S`` are
+one **warning run** ``[a, b]`` (the overlay holds a mark that long). A run is **true** when the
+car's body overlaps the ego's lane at some moment in ``[a, b + H + 1 s]`` (it did move into the
+ego's path; the false-warning rule of issue 19 with the run's last moment). A cut-in at ``t_o``
+is **warned** when a true run on that car started before ``t_o``; its **lead time** is ``t_o - a``
+for the latest such run (a warning that went away and came back counts from its return).
+Precision = true runs / runs; recall = warned cut-ins / cut-ins. ``recall_at_precision`` is the
+best recall over the threshold grid ``THRESHOLDS`` among the thresholds with precision
+>= ``MIN_PRECISION``, with that threshold's precision and median lead time; ``longest_lead`` the
+threshold with precision >= ``MIN_PRECISION`` and recall >= ``MIN_RECALL`` whose median lead time is
+the longest (the targets of issue 19 ask for all three: 0.80, 0.90 and 2 s).
+
+Every model can be scored on the same recorded inputs (``models``): the configured one is what
+the env ran; another is evaluated as if it had run (same estimates' inputs, same views).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from dt_highway.config import ConfigError, DTConfig, IntentionConfig, deep_merge, dotted_tree, merge
+from dt_highway.env import DTHighwayEnv
+from dt_highway.evaluation.twin import auc, episode_steps
+from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model
+from dt_highway.world.traffic import EGO_ID, vehicle_id
+
+MERGE_S = 1.0
+"""Warnings of one car this close in time are one warning run [s]"""
+LATE_S = 1.0
+"""A true run's car overlaps the ego's lane within H + this after the run's end [s]"""
+DX_WINDOW_M = (-15.0, 65.0)
+"""Warnings count for cars this far behind / ahead of the ego (centres, along the road) [m]"""
+THRESHOLDS = np.round(np.arange(0.05, 0.951, 0.025), 3)
+"""Threshold grid for the recall at precision >= MIN_PRECISION"""
+MIN_PRECISION = 0.80
+"""Precision the cut-in recall is read at [-]"""
+MIN_RECALL = 0.90
+"""With ``MIN_PRECISION``, the recall of the target: ``longest_lead`` is the threshold with both and the longest
+median lead [-]"""
+INTENT_EPISODES = 10
+"""Episodes of ``twin-eval --intent`` by default"""
+LEAD_STEPS_S = (1.0, 1.5, 2.0)
+"""The share of cut-ins warned at least this far ahead is reported for each [s]"""
+SWEEP = (
+    ("gnss_noise_sigma_m", "twin.uplink.noise_sigma_m", (0.5, 1.0, 2.0, 3.0)),
+    ("latency_mean_s", "twin.uplink.latency_mean_s", (0.0, 0.1, 0.3, 0.5)),
+    ("rate_hz", "twin.uplink.rate_hz", (10.0, 5.0, 2.0, 1.0)),
+)
+"""One-at-a-time sweep of the uplink (the other settings at their configured values)"""
+STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
+"""The degraded uplink: 300 ms at 1 Hz"""
+CUT_IN_GAP_M = 60.0
+"""Cut-ins are counted within this bumper gap (the safety monitor's range) [m]"""
+
+
+# ----------------------------------------------------------------------------- recording
+@dataclass
+class Episode:
+    """What one episode left for scoring.
+
+    :param dt_s: simulation step [s]
+    :param truth: rows ``(t_s, vehicle_id, lane, overlaps_ego_lane)`` per simulation step and connected NPC
+    :param tables: the cloud's intention estimates: ``(t_s, inputs)`` (sim time)
+    :param views: the views the ego received: ``(t_s received, t_s sent, ids, dx_m, ego_lane)`` (sim times;
+        ``dx_m``: each car's twin position, moved on to the reception time, minus the ego's)
+    :param cut_ins: the safety monitor's cut-ins in front of the ego (``t_s``, ``vehicle_id``, ``gap_m``,
+        ``driver_type``, ``maneuver``)
+    :param t_end_s: last simulation time recorded [s]
+    """
+
+    dt_s: float
+    truth: np.ndarray
+    tables: list[tuple[float, IntentionInputs]]
+    views: list[tuple[float, float, np.ndarray, np.ndarray, int]]
+    cut_ins: list[dict[str, Any]]
+    t_end_s: float
+
+
+class _Recorder:
+    """Collects an :class:`Episode` from the env at every simulation step from ``from_s`` on."""
+
+    def __init__(self, from_s: float) -> None:
+        self.from_s = from_s
+        self.rows: list[tuple[float, int, int, bool]] = []
+        self.tables: list[tuple[float, IntentionInputs]] = []
+        self.views: list[tuple[float, float, np.ndarray, np.ndarray, int]] = []
+        self.cut_ins: list[dict[str, Any]] = []
+        self._table: object = None
+        self._view: object = None
+        self.t_s = -math.inf
+
+    def sample(self, env: DTHighwayEnv) -> None:
+        t = env.sim_time_s
+        if t < self.from_s - 1e-9 or env.twin is None:
+            return
+        self.t_s = t
+        ego = env.vehicle
+        ego_lane = int(ego.lane_index[2])
+        road = env.road_map
+        lane_y = road.first_lane_y_m + ego_lane * road.lane_width_m
+        for v in env.road.vehicles:
+            if v is ego or not getattr(v, "dt_connected", False):
+                continue
+            overlap = abs(float(v.position[1]) - lane_y) < (road.lane_width_m + v.WIDTH) / 2
+            self.rows.append((t, vehicle_id(v), int(v.lane_index[2]), overlap))
+        table = env.twin.intent_table
+        if table is not None and table is not self._table:
+            self._table = table
+            self.tables.append((table.t_s - env.twin_offset_s, table.inputs))
+        view = env.twin_view
+        if view is not None and view is not self._view:
+            self._view = view
+            now = env.twin_now_s
+            ex = float(ego.position[0])
+            ids = np.array([u.vehicle_id for u in view.vehicles], dtype=np.int64)
+            dx = np.array([u.x_m + u.speed_mps * math.cos(u.heading_rad) * (now - u.t_fix_s) - ex for u in view.vehicles])
+            self.views.append((t, view.t_sent_s - env.twin_offset_s, ids, dx, ego_lane))
+
+    def episode(self, dt_s: float) -> Episode:
+        truth = np.array(self.rows, dtype=float).reshape(-1, 4)
+        return Episode(dt_s, truth, self.tables, self.views, self.cut_ins, self.t_s)
+
+
+class RecordingEnv(DTHighwayEnv):
+    """The env, recording an :class:`Episode` at every simulation step while ``recorder`` is set."""
+
+    def __init__(self, config: dict | None = None) -> None:
+        self.recorder: _Recorder | None = None
+        super().__init__(config=config)
+
+    def _sim_step(self) -> None:
+        super()._sim_step()
+        if self.recorder is not None:
+            self.recorder.sample(self)
+
+
+def eval_config(config: DTConfig) -> DTConfig:
+    """The configuration episodes are recorded with: the ego on its autopilot.
+
+    :raises ConfigError: without the twin, its intention model or typed traffic
+    """
+    if not config.twin.enabled:
+        raise ConfigError("twin-eval --intent needs twin.enabled = true")
+    if not config.twin.intention.enabled:
+        raise ConfigError("twin-eval --intent needs twin.intention.enabled = true")
+    if not config.traffic.driver_types:
+        raise ConfigError("twin-eval --intent needs traffic.driver_types = true (stock traffic has no typed drivers)")
+    return merge(config, {"ego": {"autopilot": True}})
+
+
+def record_episodes(
+    config: DTConfig,
+    seeds: Sequence[int | None],
+    with_preroll: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> list[Episode]:
+    """Run and record episodes of one env (ego on the autopilot).
+
+    :param config: resolved configuration
+    :param seeds: the seed of each episode's reset (``None``: continue the world of the previous one)
+    :param with_preroll: also record the pre-roll (training data); else from ``t = 0`` on
+    :param progress: called with policy steps simulated (see :func:`~dt_highway.evaluation.twin.episode_steps`)
+    :return: one :class:`Episode` per seed
+    """
+    cfg = eval_config(config)
+    env = RecordingEnv(config=cfg.to_dict())
+    out = []
+    try:
+        for seed in seeds:
+            env.recorder = _Recorder(-math.inf if with_preroll else 0.0)
+            env.reset(seed=seed)
+            if progress is not None:
+                progress(int(round(cfg.twin.preroll_s * cfg.highway.policy_frequency)))
+            rec = env.recorder
+            done = False
+            while not done:
+                _, _, terminated, truncated, info = env.step(env.action_space.sample())
+                rec.cut_ins += [
+                    {"t_s": float(c["t_s"]), "vehicle_id": int(c["vehicle_id"]), "gap_m": float(c["gap_m"]),
+                     "driver_type": c.get("driver_type"), "maneuver": c.get("maneuver", "")}
+                    for c in info["safety"]["cut_ins"] if int(c["vehicle_id"]) != EGO_ID
+                ]
+                done = terminated or truncated
+                if progress is not None:
+                    progress(1)
+            env.recorder = None
+            out.append(rec.episode(1.0 / cfg.highway.simulation_frequency))
+    finally:
+        env.close()
+    return out
+
+
+# ----------------------------------------------------------------------------- truth
+class Truth:
+    """Each connected vehicle's lane over time, as lookups for labels.
+
+    :param truth: rows ``(t_s, vehicle_id, lane, overlaps_ego_lane)`` (an :attr:`Episode.truth`)
+    :param dt_s: simulation step [s]
+    """
+
+    KEY = 1e6
+    """Keys are ``vehicle_id * KEY + t_s`` (times stay far below it)"""
+
+    def __init__(self, truth: np.ndarray, dt_s: float) -> None:
+        order = np.lexsort((truth[:, 0], truth[:, 1]))
+        rows = truth[order]
+        self.dt_s = dt_s
+        self.t = rows[:, 0]
+        self.vid = rows[:, 1].astype(np.int64)
+        self.lane = rows[:, 2].astype(np.int64)
+        self.overlap = rows[:, 3].astype(bool)
+        self.key = self.vid * self.KEY + self.t
+        n = len(rows)
+        if n == 0:
+            self.seg = self.seg_end_t = self.next_change_t = np.zeros(0)
+            self.next_lane = np.zeros(0, dtype=np.int64)
+            return
+        new_seg = np.ones(n, dtype=bool)
+        if n > 1:
+            new_seg[1:] = (self.vid[1:] != self.vid[:-1]) | (self.t[1:] - self.t[:-1] > 1.5 * dt_s)
+        seg = np.cumsum(new_seg) - 1
+        self.seg = seg
+        last_of_seg = np.r_[new_seg[1:], True]
+        seg_end_t = self.t[last_of_seg]
+        self.seg_end_t = seg_end_t[seg]
+        change = np.zeros(n, dtype=bool)
+        if n > 1:
+            change[1:] = ~new_seg[1:] & (self.lane[1:] != self.lane[:-1])
+        # index of the next change after each row (n: none), then kept only within the segment
+        idx = np.where(change, np.arange(n), n)
+        nxt = np.minimum.accumulate(idx[::-1])[::-1]
+        nxt = np.r_[nxt[1:], n]  # strictly after the row
+        ok = nxt < n
+        ok[ok] = seg[nxt[ok]] == seg[ok]
+        self.next_change_t = np.where(ok, self.t[np.minimum(nxt, n - 1)], np.inf)
+        self.next_lane = np.where(ok, self.lane[np.minimum(nxt, n - 1)], -1)
+
+    def rows_at(self, vehicle_ids: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+        """:return: the truth row of each ``(vehicle, time)`` (-1 when the vehicle was not on the road then)"""
+        q = vehicle_ids.astype(np.int64) * self.KEY + t_s
+        i = np.searchsorted(self.key, q - self.dt_s / 2)
+        if len(self.key) == 0:
+            return np.full(len(q), -1, dtype=np.int64)
+        i = np.minimum(i, len(self.key) - 1)
+        hit = np.abs(self.key[i] - q) < self.dt_s / 2
+        return np.where(hit, i, -1)
+
+    def labels(self, rows: np.ndarray, t_s: np.ndarray, horizon_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lane-change labels of truth rows at times ``t_s``.
+
+        :return: ``known`` (not censored, row found), ``changed`` (within ``horizon_s``) and the new lane (-1 if none)
+        """
+        found = rows >= 0
+        r = np.where(found, rows, 0)
+        changed = found & (self.next_change_t[r] - t_s <= horizon_s + 1e-9)
+        known = found & (changed | (self.seg_end_t[r] - t_s >= horizon_s - 1e-9))
+        return known, changed, np.where(changed, self.next_lane[r], -1)
+
+    def overlaps_between(self, vehicle_id: int, t0_s: float, t1_s: float) -> bool:
+        """:return: whether the vehicle's body overlapped the ego's lane at some step in ``[t0_s, t1_s]``"""
+        lo = np.searchsorted(self.key, vehicle_id * self.KEY + t0_s - 1e-9)
+        hi = np.searchsorted(self.key, vehicle_id * self.KEY + t1_s + 1e-9)
+        return bool(self.overlap[lo:hi].any())
+
+
+# ----------------------------------------------------------------------------- scoring
+def predictions(model: IntentionModel, tables: list[tuple[float, IntentionInputs]]) -> list[np.ndarray]:
+    """The model's ``(N, H, 3)`` probabilities for every recorded estimate (one batched call)."""
+    if not tables:
+        return []
+    cat = IntentionInputs(
+        np.concatenate([x.vehicle_ids for _, x in tables]), 0.0, np.concatenate([x.lane for _, x in tables]),
+        np.concatenate([x.own for _, x in tables]), np.concatenate([x.side for _, x in tables]),
+        np.concatenate([x.side_ok for _, x in tables]),
+    )
+    probs = model.predict(cat)
+    cuts = np.cumsum([len(x) for _, x in tables])[:-1]
+    return np.split(probs, cuts)
+
+
+def _change_and_target(inputs: IntentionInputs, probs: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``p_change`` and ``target_lane`` at horizon index ``k`` (as :meth:`IntentTable.arrays`)."""
+    p = probs[:, k]
+    ok = inputs.side_ok
+    right = ok[:, 1] & (~ok[:, 0] | (p[:, 2] > p[:, 1]))
+    target = np.where(ok.any(axis=1), inputs.lane + np.where(right, 1, -1), NO_LANE)
+    return np.clip(1.0 - p[:, 0], 0.0, 1.0), target
+
+
+@dataclass
+class _Pooled:
+    """Vehicle-level samples of one horizon, pooled over episodes."""
+
+    p: list[np.ndarray] = field(default_factory=list)
+    y: list[np.ndarray] = field(default_factory=list)
+    target_ok: list[np.ndarray] = field(default_factory=list)
+
+
+def vehicle_scores(episodes: Sequence[Episode], truths: Sequence[Truth], probs: Sequence[list[np.ndarray]],
+                   horizons_s: Sequence[float], threshold: float) -> list[dict[str, Any]]:
+    """Per horizon: ROC AUC, precision and recall at ``threshold``, target-lane accuracy (module docstring)."""
+    out = []
+    for k, h in enumerate(horizons_s):
+        pool = _Pooled()
+        for ep, truth, pr in zip(episodes, truths, probs, strict=True):
+            for (t, inputs), p in zip(ep.tables, pr, strict=True):
+                if t < 0 or len(inputs) == 0:
+                    continue
+                tt = np.full(len(inputs), t)
+                rows = truth.rows_at(inputs.vehicle_ids, tt)
+                known, changed, new_lane = truth.labels(rows, tt, h)
+                p_change, target = _change_and_target(inputs, p, k)
+                pool.p.append(p_change[known])
+                pool.y.append(changed[known])
+                pool.target_ok.append((target == new_lane)[known])
+        p_all = np.concatenate(pool.p) if pool.p else np.zeros(0)
+        y_all = np.concatenate(pool.y) if pool.y else np.zeros(0, dtype=bool)
+        t_ok = np.concatenate(pool.target_ok) if pool.target_ok else np.zeros(0, dtype=bool)
+        warned = p_all >= threshold
+        tp = int((warned & y_all).sum())
+        nan = float("nan")
+        out.append({
+            "horizon_s": h,
+            "auc": auc(p_all, y_all) if len(p_all) else nan,
+            "precision": tp / int(warned.sum()) if warned.any() else nan,
+            "recall": tp / int(y_all.sum()) if y_all.any() else nan,
+            "target_lane_accuracy": float(t_ok[warned & y_all].mean()) if tp else nan,
+            "n_samples": int(len(p_all)),
+            "n_positive": int(y_all.sum()),
+        })
+    return out
+
+
+@dataclass(frozen=True)
+class Warning:
+    """A warning run on one car (sim times [s])."""
+
+    vehicle_id: int
+    start_s: float
+    end_s: float
+    true: bool
+
+
+def _view_tables(ep: Episode) -> np.ndarray:
+    """For each received view, the index of the estimate it was built from (the newest at its sending)."""
+    t_tables = np.array([t for t, _ in ep.tables])
+    sent = np.array([v[1] for v in ep.views])
+    return np.searchsorted(t_tables, sent + 1e-9, side="right") - 1 if len(sent) else np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class ViewSamples:
+    """Every (received view, car in it) of an episode at one horizon, as flat arrays (sim times [s]).
+
+    :param t_s: when the ego received the view
+    :param t_next_s: when the next view replaced it
+    :param vehicle_id: the car
+    :param p_change: its ``p_change`` in the estimate the view was built from
+    :param target: its ``target_lane`` there
+    :param dx_m: its twin position minus the ego's [m]
+    :param ego_lane: the ego's lane
+    """
+
+    t_s: np.ndarray
+    t_next_s: np.ndarray
+    vehicle_id: np.ndarray
+    p_change: np.ndarray
+    target: np.ndarray
+    dx_m: np.ndarray
+    ego_lane: np.ndarray
+
+
+def view_samples(ep: Episode, probs: list[np.ndarray], k: int) -> ViewSamples:
+    """The episode's views (from ``t = 0``) with the model's estimates at horizon index ``k``."""
+    which = _view_tables(ep)
+    parts: list[tuple[np.ndarray, ...]] = []
+    for j, (t_recv, _, ids, dx, ego_lane) in enumerate(ep.views):
+        ti = int(which[j])
+        if t_recv < 0 or ti < 0 or len(ids) == 0:
+            continue
+        inputs = ep.tables[ti][1]
+        p_change, target = _change_and_target(inputs, probs[ti], k)
+        order = np.argsort(inputs.vehicle_ids)
+        pos = np.minimum(np.searchsorted(inputs.vehicle_ids[order], ids), len(order) - 1) if len(order) else ids * 0
+        found = inputs.vehicle_ids[order][pos] == ids if len(order) else np.zeros(len(ids), dtype=bool)
+        i = order[pos[found]] if len(order) else pos[found]
+        t_next = ep.views[j + 1][0] if j + 1 < len(ep.views) else ep.t_end_s + ep.dt_s
+        n = int(found.sum())
+        parts.append((np.full(n, t_recv), np.full(n, t_next), ids[found], p_change[i], target[i], dx[found],
+                      np.full(n, ego_lane)))
+    if not parts:
+        z = np.zeros(0)
+        return ViewSamples(z, z, z.astype(np.int64), z, z.astype(np.int64), z, z.astype(np.int64))
+    cols = [np.concatenate(c) for c in zip(*parts, strict=True)]
+    return ViewSamples(*cols)
+
+
+def runs_at(samples: ViewSamples, truth: Truth, threshold: float, horizon_s: float) -> list[Warning]:
+    """The warning runs at one threshold (module docstring)."""
+    s = samples
+    warned = (s.p_change >= threshold) & (s.target == s.ego_lane) & (s.dx_m >= DX_WINDOW_M[0]) & (s.dx_m <= DX_WINDOW_M[1])
+    vid, t0, t1 = s.vehicle_id[warned], s.t_s[warned], s.t_next_s[warned]
+    order = np.lexsort((t0, vid))
+    vid, t0, t1 = vid[order], t0[order], t1[order]
+    runs: list[Warning] = []
+    if len(vid) == 0:
+        return runs
+    new = np.ones(len(vid), dtype=bool)  # a car's views follow each other: t1 grows with t0
+    new[1:] = (vid[1:] != vid[:-1]) | (t0[1:] - t1[:-1] >= MERGE_S)
+    starts = np.flatnonzero(new)
+    ends = np.r_[starts[1:], len(vid)] - 1
+    for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
+        car, start, end = int(vid[a]), float(t0[a]), float(t1[a:b + 1].max())
+        runs.append(Warning(car, start, end, truth.overlaps_between(car, start, end + horizon_s + LATE_S)))
+    return runs
+
+
+def warning_runs(ep: Episode, truth: Truth, probs: list[np.ndarray], k: int, threshold: float,
+                 horizon_s: float) -> list[Warning]:
+    """The warning runs the ego would have seen (module docstring), from the episode's views."""
+    return runs_at(view_samples(ep, probs, k), truth, threshold, horizon_s)
+
+
+def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: float) -> list[float]:
+    """Lead time of each cut-in [s] (NaN: not warned before its first overlap)."""
+    leads = []
+    for c in cut_ins:
+        t_o, vid = c["t_s"], c["vehicle_id"]
+        starts = [w.start_s for w in runs if w.vehicle_id == vid and w.start_s < t_o <= w.end_s + horizon_s + LATE_S]
+        leads.append(t_o - max(starts) if starts else math.nan)
+    return leads
+
+
+def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples: Sequence[ViewSamples],
+                  threshold: float, horizon_s: float) -> dict[str, Any]:
+    """Precision of the warning runs, recall and lead times of the cut-ins at one threshold and horizon."""
+    n_runs = n_true = 0
+    leads: list[float] = []
+    kinds: list[str] = []
+    duration = 0.0
+    for ep, truth, smp in zip(episodes, truths, samples, strict=True):
+        runs = runs_at(smp, truth, threshold, horizon_s)
+        n_runs += len(runs)
+        n_true += sum(w.true for w in runs)
+        cuts = [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
+        leads += cut_in_leads(cuts, runs, horizon_s)
+        kinds += [c.get("maneuver") or "own" for c in cuts]
+        duration += max(ep.t_end_s, 0.0)
+    lead = np.array(leads, dtype=float)
+    warned = ~np.isnan(lead)
+    nan = float("nan")
+    out: dict[str, Any] = {
+        "threshold": float(threshold),
+        "precision": n_true / n_runs if n_runs else nan,
+        "recall": float(warned.mean()) if len(lead) else nan,
+        "median_lead_s": float(np.median(lead[warned])) if warned.any() else nan,
+        "n_cut_ins": int(len(lead)),
+        "n_warnings": n_runs,
+        "false_warnings_per_min": (n_runs - n_true) / (duration / 60.0) if duration > 0 else nan,
+    }
+    for s in LEAD_STEPS_S:
+        out[f"share_warned_{s:g}s_ahead"] = float((lead[warned] >= s).sum() / len(lead)) if len(lead) else nan
+    by_kind: dict[str, Any] = {}
+    for kind in sorted(set(kinds)):
+        sel = np.array([x == kind for x in kinds])
+        lk = lead[sel]
+        ok = ~np.isnan(lk)
+        by_kind[kind] = {"n": int(sel.sum()), "recall": float(ok.mean()),
+                         "median_lead_s": float(np.median(lk[ok])) if ok.any() else nan}
+    out["by_maneuver"] = by_kind
+    return out
+
+
+def score_model(episodes: Sequence[Episode], model: IntentionModel, intention: IntentionConfig) -> dict[str, Any]:
+    """All scores of one model on recorded episodes (see the module docstring)."""
+    truths = [Truth(ep.truth, ep.dt_s) for ep in episodes]
+    probs = [predictions(model, ep.tables) for ep in episodes]
+    horizons = tuple(model.horizons_s)
+    per_horizon = vehicle_scores(episodes, truths, probs, horizons, intention.threshold)
+    cut_ins = []
+    for k, h in enumerate(horizons):
+        samples = [view_samples(ep, pr, k) for ep, pr in zip(episodes, probs, strict=True)]
+        at_op = cut_in_scores(episodes, truths, samples, intention.threshold, h)
+        grid = [cut_in_scores(episodes, truths, samples, float(th), h) for th in THRESHOLDS]
+        ok = [g for g in grid if g["precision"] >= MIN_PRECISION]
+        best = max(ok, key=lambda g: (g["recall"], -g["threshold"])) if ok else None
+        both = [g for g in ok if g["recall"] >= MIN_RECALL and math.isfinite(g["median_lead_s"])]
+        longest = max(both, key=lambda g: (g["median_lead_s"], -g["threshold"])) if both else None
+        cut_ins.append({
+            "horizon_s": h,
+            "at_threshold": at_op,
+            "recall_at_precision": best["recall"] if best else 0.0,
+            "best": best,
+            "longest_lead": longest,
+            "curve": [{"threshold": g["threshold"], "precision": g["precision"], "recall": g["recall"],
+                       "median_lead_s": g["median_lead_s"]} for g in grid],
+        })
+    return {"per_horizon": per_horizon, "cut_ins": cut_ins}
+
+
+def evaluate_intent(
+    config: DTConfig,
+    episodes: int,
+    seed: int,
+    models: Sequence[str] = ("learned", "physics"),
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Record ``episodes`` episodes (the first reset with ``seed``, the others continue its world) and score
+    the configured intention model and the other ``models`` on them.
+
+    :param config: resolved configuration
+    :param episodes: number of episodes (>= 1)
+    :param seed: seed of the first reset (use seeds the model was not trained on)
+    :param models: the models to score beside the configured one (``learned``, ``physics``)
+    :param progress: called with policy steps simulated
+    :return: ``{"settings", "operating", "models": {name: scores}}``
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1 (got {episodes})")
+    intention = config.twin.intention
+    recorded = record_episodes(config, [seed] + [None] * (episodes - 1), progress=progress)
+    names = [intention.model] + [m for m in models if m != intention.model]
+    scores = {}
+    for name in names:
+        try:
+            model = make_model(intention.model_copy(update={"model": name}))
+        except ValueError as exc:
+            raise ConfigError(f"twin.intention: {exc}") from None
+        scores[name] = score_model(recorded, model, intention)
+    cfg = eval_config(config)
+    return {
+        "configured_model": intention.model,
+        "operating": {"horizon_s": intention.operating_horizon_s, "threshold": intention.threshold},
+        "targets": {"recall": 0.90, "at_precision": MIN_PRECISION, "median_lead_s": 2.0},
+        "models": scores,
+        "episodes": episodes,
+        "seed": seed,
+        "settings": _settings(cfg),
+    }
+
+
+def _settings(cfg: DTConfig) -> dict[str, Any]:
+    return {
+        "noise_sigma_m": cfg.twin.uplink.noise_sigma_m,
+        "uplink_rate_hz": cfg.twin.uplink.rate_hz,
+        "latency_mean_s": cfg.twin.uplink.latency_mean_s,
+        "loss_prob": cfg.twin.uplink.loss_prob,
+        "preroll_s": cfg.twin.preroll_s,
+        "duration_s": cfg.highway.duration,
+        "vehicles_count": cfg.highway.vehicles_count,
+        "aggressive_fraction": cfg.traffic.aggressive_fraction,
+        "update_hz": cfg.twin.intention.update_hz,
+    }
+
+
+def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]:
+    """The numbers of one model at the operating horizon: per-horizon AUCs, cut-in recall at precision
+    >= 0.80, its median lead, and precision / recall / lead at the operating threshold."""
+    name = model or result["configured_model"]
+    s = result["models"][name]
+    h = result["operating"]["horizon_s"]
+    ci = min(s["cut_ins"], key=lambda c: abs(c["horizon_s"] - h))
+    best = ci["best"] or {}
+    longest = ci["longest_lead"] or {}
+    op = ci["at_threshold"]
+    return {
+        "model": name,
+        "auc": {f"{r['horizon_s']:g}s": r["auc"] for r in s["per_horizon"]},
+        "recall_at_precision_0_80": ci["recall_at_precision"],
+        "threshold_there": best.get("threshold", float("nan")),
+        "median_lead_s_there": best.get("median_lead_s", float("nan")),
+        "longest_median_lead_s": longest.get("median_lead_s", float("nan")),
+        "threshold_longest_lead": longest.get("threshold", float("nan")),
+        "op_precision": op["precision"],
+        "op_recall": op["recall"],
+        "op_median_lead_s": op["median_lead_s"],
+        "n_cut_ins": op["n_cut_ins"],
+    }
+
+
+def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
+                     progress: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
+    """The uplink sweep (``SWEEP`` one at a time, then ``STRESS``) of the configured model.
+
+    :return: one row per setting: ``parameter``, ``value`` and the :func:`headline` numbers
+    """
+    runs: list[tuple[str, Any, dict[str, Any]]] = []
+    for name, key, values in SWEEP:
+        runs += [(name, v, dotted_tree(key, v)) for v in values]
+    stress: dict[str, Any] = {}
+    for key, v in STRESS.items():
+        stress = deep_merge(stress, dotted_tree(key, v))
+    runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
+    rows = []
+    for name, value, extra in runs:
+        res = evaluate_intent(merge(config, extra), episodes, seed, models=(), progress=progress)
+        rows.append({"parameter": name, "value": value, **headline(res)})
+    return rows
+
+
+def sweep_steps(config: DTConfig, episodes: int) -> int:
+    """Policy steps :func:`run_intent_sweep` simulates (for its progress bar)."""
+    n = sum(len(values) for _, _, values in SWEEP) + 1
+    return n * episodes * episode_steps(config)
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def format_intent(result: dict[str, Any]) -> list[str]:
+    """The lines ``twin-eval --intent`` prints: one block per model (the configured one first)."""
+    op = result["operating"]
+    lines = [(f"lane-change intention, {result['episodes']} episodes from seed {result['seed']} "
+              f"(operating point: H = {op['horizon_s']:g} s, threshold {op['threshold']:g})")]
+    for name, s in result["models"].items():
+        head = headline(result, name)
+        lines.append(f"{name}{' (configured)' if name == result['configured_model'] else ''}:")
+        for r in s["per_horizon"]:
+            lines.append(f"  H {r['horizon_s']:g} s: AUC {_f(r['auc'])}, precision {_f(r['precision'])}, recall "
+                         f"{_f(r['recall'])} at threshold, target lane right {_f(r['target_lane_accuracy'])} "
+                         f"({r['n_positive']} changes in {r['n_samples']} estimates)")
+        lines.append(f"  cut-ins in front of the ego within {CUT_IN_GAP_M:g} m ({head['n_cut_ins']}), "
+                     f"H {op['horizon_s']:g} s: "
+                     f"recall {_f(head['recall_at_precision_0_80'])} at precision >= {MIN_PRECISION:.2f} (threshold "
+                     f"{_f(head['threshold_there'])}, median lead {_f(head['median_lead_s_there'], 2)} s); at the operating "
+                     f"threshold precision {_f(head['op_precision'])}, recall {_f(head['op_recall'])}, median lead "
+                     f"{_f(head['op_median_lead_s'], 2)} s; the longest median lead with precision >= "
+                     f"{MIN_PRECISION:.2f} and recall >= {MIN_RECALL:.2f}: {_f(head['longest_median_lead_s'], 2)} s "
+                     f"(threshold {_f(head['threshold_longest_lead'])})")
+    return lines
+
+
+def format_sweep(rows: list[dict[str, Any]]) -> list[str]:
+    """The lines ``twin-eval --intent --sweep`` prints: one per uplink setting."""
+    lines = [("parameter            value       AUC@1s AUC@2s AUC@3s  recall@P>=0.80  thr    median lead [s]  "
+              "longest lead @P>=0.80,R>=0.90 [s]")]
+    for r in rows:
+        a = list(r["auc"].values())
+        a += [float("nan")] * (3 - len(a))
+        lines.append(f"{r['parameter']:20s} {str(r['value']):10s}  {_f(a[0])}  {_f(a[1])}  {_f(a[2])}   "
+                     f"{_f(r['recall_at_precision_0_80'])}           {_f(r['threshold_there'])}  "
+                     f"{_f(r['median_lead_s_there'], 2):15s}  {_f(r['longest_median_lead_s'], 2)}")
+    return lines

@@ -1,0 +1,138 @@
+"""The last user mistakes of issue 21, each a one-line error (or a one-line note) before any work
+starts: a directory or /dev/null where a file is wanted, a detector training that has nothing
+left to do, RL step budgets that are not whole rollouts, and the driving benchmark's display."""
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+
+from dt_highway.cli import main
+from dt_highway.config import ConfigError, load_config
+from dt_highway.rl.config import TrainConfig, load_train_config
+from dt_highway.rl.train import rollout_steps, round_timesteps
+
+TINY = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=4", "--set", "twin.preroll_s=4",
+        "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40"]
+
+
+def one_line(capsys, code, must_contain):
+    """The command returned 2 and said one line on stderr, holding ``must_contain``."""
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert code == 2 and len(err) == 1, err
+    assert must_contain in err[0], err[0]
+    return err[0]
+
+
+@pytest.mark.parametrize("where", ["dir", "/dev/null"])
+def test_twin_store_path_must_be_a_file(tmp_path, capsys, where):
+    path = str(tmp_path) if where == "dir" else where
+    code = main(["run", "--episodes", "1", "--quiet", "--out", str(tmp_path / "o"), "--set", f"twin.store.path={path}",
+                 *TINY])
+    line = one_line(capsys, code, f"twin.store.path = '{path}': must name a SQLite file, new or existing")
+    assert ("a directory" if where == "dir" else "not a regular file") in line
+    with pytest.raises(ConfigError, match="twin.store.path"):
+        load_config(overrides=[f"twin.store.path={path}"])
+    assert load_config(overrides=[f"twin.store.path={tmp_path / 'new.sqlite'}"]).twin.store.path  # a new file is fine
+
+
+@pytest.mark.parametrize("where", ["dir", "/dev/null"])
+def test_scenario_must_be_a_file(tmp_path, capsys, where):
+    path = str(tmp_path) if where == "dir" else where
+    one_line(capsys, main(["twin-eval", "--scenario", path, "--quiet"]), f"scenario file '{path}' is not a file")
+    one_line(capsys, main(["twin-eval", "--scenario", str(tmp_path / "nope.toml"), "--quiet"]), "does not exist")
+
+
+SMALL = ["--width", "64", "--height", "64", "--batch", "2", "--quiet"]
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_detector_train_out_a_directory_is_refused_before_training(tmp_path, capsys, fresh):
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    (weights / "keep.txt").write_text("x")
+    t0 = time.perf_counter()
+    code = main(["detector", "train", "--out", str(weights), "--max-steps", "1", *SMALL, *(["--fresh"] if fresh else [])])
+    one_line(capsys, code, f"{weights} is a directory: --out names the weights file to write, e.g. {weights / 'detector.pt'}")
+    assert time.perf_counter() - t0 < 20  # nothing was trained
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["keep.txt", "weights"]  # and nothing left behind
+
+
+def _checkpoint(path, steps, elapsed_s):
+    """A checkpoint of a 64 x 64 RGB detector that has done ``steps`` steps in ``elapsed_s``."""
+    import torch
+
+    from dt_highway.perception.learned.model import Architecture
+
+    torch.save({"arch": Architecture(width_px=64, height_px=64).to_dict(), "model": {}, "optimizer": {},
+                "step": steps, "elapsed_s": elapsed_s, "next_seed": 0, "rendered": 2 * steps,
+                "generator": torch.Generator().get_state()}, path)
+
+
+def test_detector_train_resumed_with_nothing_left_to_do_says_so(tmp_path, capsys):
+    out = tmp_path / "det.pt"
+    ckpt = tmp_path / "det.pt.ckpt"
+    _checkpoint(ckpt, steps=5, elapsed_s=30.0)
+    before = ckpt.read_bytes()
+    code = main(["detector", "train", "--out", str(out), "--max-steps", "3", *SMALL])
+    one_line(capsys, code, f"nothing to train: {ckpt} already holds 5 steps, --max-steps 3 is reached "
+                           "(raise it to train on, or pass --fresh to start over)")
+    code = main(["detector", "train", "--out", str(out), "--max-steps", "5", *SMALL])
+    one_line(capsys, code, "already holds 5 steps, --max-steps 5 is reached")
+    code = main(["detector", "train", "--out", str(out), "--minutes", "0.25", *SMALL])  # 15 s of the 30 s done
+    one_line(capsys, code, f"nothing to train: {ckpt} already trained 0.50 min, --minutes 0.25 is reached")
+    assert not out.exists() and ckpt.read_bytes() == before  # untouched
+
+
+def test_rl_timesteps_are_rounded_up_to_whole_rollouts_with_one_line():
+    cfg = load_train_config("agents/ppo-baseline.toml")  # PPO, n_steps 1024, 1 env
+    assert rollout_steps(cfg) == 1024
+    rounded, message = round_timesteps(TrainConfig.model_validate({**cfg.model_dump(), "timesteps": 256}))
+    assert rounded.timesteps == 1024
+    assert message == "--timesteps 256 rounded up to 1024: PPO trains whole rollouts of 1024 steps (n_steps 1024 x 1 env)"
+    two = TrainConfig.model_validate({**cfg.model_dump(), "timesteps": 2049, "n_envs": 2})
+    assert round_timesteps(two)[0].timesteps == 4096  # rollouts of 2 x 1024
+    exact = TrainConfig.model_validate({**cfg.model_dump(), "timesteps": 3072})
+    assert round_timesteps(exact) == (exact, None)
+    dqn = TrainConfig.model_validate({**cfg.model_dump(), "algorithm": "DQN", "hyperparameters": {}, "n_envs": 3,
+                                      "timesteps": 100})
+    assert rollout_steps(dqn) == 4 * 3  # DQN's default train_freq: 4 steps per env
+    assert round_timesteps(dqn)[0].timesteps == 108
+
+
+def _bench(env_extra, drop=("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY")):
+    env = {k: v for k, v in os.environ.items() if k not in drop} | env_extra
+    return subprocess.run([sys.executable, "-m", "dt_highway.cli", "bench", "drive", "--duration", "0.5", "--vehicles",
+                           "5", "--width", "320", "--height", "180", "--condition", "baseline"],
+                          capture_output=True, text=True, env=env)
+
+
+def test_bench_drive_says_which_video_driver_it_used():
+    headless = _bench({})
+    assert headless.returncode == 0, headless.stderr
+    assert headless.stdout.rstrip().endswith("; video driver offscreen")  # no display: offscreen
+    unreachable = _bench({"DISPLAY": ":77"})  # honoured, but nothing answers there: SDL falls back, and we say so
+    assert unreachable.returncode == 0, unreachable.stderr
+    assert unreachable.stdout.rstrip().endswith("video driver offscreen (the display :77 was not used)")
+    forced = _bench({"DISPLAY": ":77", "SDL_VIDEODRIVER": "x11"})
+    assert forced.returncode == 2 and "Traceback" not in forced.stderr
+    assert forced.stderr.strip().splitlines()[-1] == (
+        "dt-highway bench: error: cannot open the driving window with SDL_VIDEODRIVER=x11 (x11 not available): "
+        "run headless with SDL_VIDEODRIVER=offscreen, or fix the display")
+
+
+@pytest.mark.skipif(shutil.which("Xvfb") is None, reason="needs Xvfb for a real X display")
+def test_bench_drive_opens_its_window_on_the_display():
+    xvfb = subprocess.Popen(["Xvfb", ":93", "-screen", "0", "800x600x24"], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.0)
+        shown = _bench({"DISPLAY": ":93"})
+    finally:
+        xvfb.terminate()
+        xvfb.wait()
+    assert shown.returncode == 0, shown.stderr
+    assert shown.stdout.rstrip().endswith("; video driver x11")

@@ -1,0 +1,340 @@
+"""The twin's lane-change intention: hand-built fix histories, the wall to the truth, determinism,
+configuration errors, the evaluation's bookkeeping and its command on tiny inputs."""
+
+import ast
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dt_highway.cli import main
+from dt_highway.config import ConfigError, DTConfig, IntentionConfig, TwinConfig, load_config, validate
+from dt_highway.env import DTHighwayEnv
+from dt_highway.evaluation.intent import Episode, Truth, Warning, cut_in_leads, warning_runs
+from dt_highway.evaluation.intent_train import dataset, fit
+from dt_highway.labels import NORMAL
+from dt_highway.twin import CloudTwin, FixStore, GnssFix, HighwayMap
+from dt_highway.twin.intention import (
+    NO_LANE,
+    OWN_FEATURES,
+    SIDE_FEATURES,
+    IntentionEstimator,
+    IntentionInputs,
+    LearnedIntention,
+    intention_inputs,
+)
+from dt_highway.twin.tagger import DriverRecord
+
+ROOT = Path(__file__).resolve().parents[1]
+ROAD = HighwayMap(4.0, 3)
+TINY = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=4", "--set", "twin.preroll_s=6",
+        "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40"]
+
+
+def _track(vid, y_of_t, x0=0.0, v=25.0, t_end=10.0, seconds=2.5, hz=10.0):
+    """Noise-free fixes of one vehicle at ``hz`` up to ``t_end``: x = x0 + v t, y = y_of_t(t), course from dy/dt."""
+    out = []
+    for k in range(int(seconds * hz) + 1):
+        t = t_end - seconds + k / hz
+        y = y_of_t(t)
+        vy = (y_of_t(t + 1e-3) - y_of_t(t - 1e-3)) / 2e-3
+        out.append(GnssFix(vid, t, x0 + v * t, y, math.hypot(v, vy), math.atan2(vy, v), t + 0.1))
+    return out
+
+
+def _drift(t, start=9.2, y0=8.0, vy=-2.0):
+    """Lane 2's centre until ``start``, then toward lane 1 at ``vy``."""
+    return y0 + vy * max(0.0, t - start)
+
+
+def _fixes():
+    return _track(0, lambda t: 4.0, x0=0.0) + _track(1, _drift, x0=10.0) + _track(2, lambda t: 0.0, x0=30.0)
+
+
+def _scene():
+    """The ego (0) in lane 1; car 1 in lane 2 just ahead of it, drifting toward the ego's lane at 2 m/s for
+    the last 0.8 s (still in lane 2), no record (the prior); car 2 steady in lane 0's centre, tagged normal."""
+    store = FixStore(30.0)
+    store.add(_fixes())
+    records = {2: DriverRecord(2, 0.0, observed_s=60.0, tag=NORMAL, confidence=0.98)}
+    return store, records
+
+
+@pytest.mark.parametrize("model", ["learned", "physics"])
+def test_a_car_drifting_toward_the_ego_lane_is_predicted_to_cut_in_and_a_steady_one_is_not(model):
+    store, records = _scene()
+    est = IntentionEstimator(IntentionConfig(model=model), ROAD)
+    table = est.estimate(store, records, now_s=10.0, ego_id=0)
+    assert 0 not in table  # the ego is context, not judged
+    drifting = table.intents(1)
+    steady = table.intents(2)
+    assert [i.horizon_s for i in drifting] == [1.0, 2.0, 3.0]
+    for i in drifting:
+        assert i.target_lane == 1  # the ego's lane
+        assert i.p_change > 0.7
+        assert 0 < i.p_target <= i.p_change + 1e-12
+    for i in steady:
+        assert i.p_change < 0.1
+        assert i.target_lane == 1  # lane 0 has only one neighbour
+    assert drifting[0].p_change <= drifting[1].p_change + 1e-9 <= drifting[2].p_change + 2e-9
+
+
+def test_the_inputs_are_what_the_fixes_say():
+    store, records = _scene()
+    x = intention_inputs(store, records, ROAD, 10.0, ego_id=0)
+    assert list(x.vehicle_ids) == [1, 2]
+    assert list(x.lane) == [2, 2 - 2]
+    i = 0
+    left = x.side[i, 0]
+    assert x.side_ok[i].tolist() == [True, False]  # lane 2 of 3: only a left neighbour
+    # over the last 0.6 s the car moved 2 m/s toward the left (lane 1), from the course
+    assert left[SIDE_FEATURES.index("vlat_06")] == pytest.approx(2.0, abs=0.05)
+    t = np.arange(9.1, 10.05, 0.1)  # the fixes of the last second: a least-squares slope over them
+    assert left[SIDE_FEATURES.index("vlat_fit")] == pytest.approx(-np.polyfit(t, [_drift(u) for u in t], 1)[0])
+    # the ego is in the left lane, 10 m behind: the car's bumper is 5 m ahead of the ego's
+    assert left[SIDE_FEATURES.index("ego_in_side")] == 1.0
+    assert left[SIDE_FEATURES.index("ego_dx_side")] * 50 == pytest.approx(10.0, abs=1e-6)
+    assert left[SIDE_FEATURES.index("ego_gap_side")] * 10 == pytest.approx(5.0, abs=1e-6)
+    assert left[SIDE_FEATURES.index("ego_is_side_follower")] == 1.0
+    assert x.own[i, OWN_FEATURES.index("p_aggressive")] == pytest.approx(0.2)  # the prior
+    assert x.own[1, OWN_FEATURES.index("p_aggressive")] == pytest.approx(0.02)
+
+
+def test_too_few_or_old_fixes_give_no_intents():
+    store = FixStore(30.0)
+    store.add(_track(5, lambda t: 4.0, seconds=0.1))  # 2 fixes
+    store.add(_track(6, lambda t: 4.0, t_end=5.0))  # newest fix 5 s old
+    table = IntentionEstimator(IntentionConfig(), ROAD).estimate(store, {}, now_s=10.0)
+    assert table.intents(5) == () and table.intents(6) == ()
+
+
+def test_at_1_hz_the_window_reaches_back_to_three_fixes():
+    store = FixStore(30.0)
+    store.add(_track(7, lambda t: 4.0, seconds=2.0, hz=1.0))  # fixes at 8, 9 and 10 s: two within the last 2 s
+    table = IntentionEstimator(IntentionConfig(), ROAD).estimate(store, {}, now_s=10.5)
+    assert len(table.intents(7)) == 3
+
+
+def test_a_lane_without_neighbours_has_no_target():
+    road = HighwayMap(4.0, 1)
+    store = FixStore(30.0)
+    store.add(_track(1, lambda t: 0.0))
+    table = IntentionEstimator(IntentionConfig(), road).estimate(store, {}, now_s=10.0)
+    assert all(i.target_lane == NO_LANE and i.p_change == 0.0 and i.p_target == 0.0 for i in table.intents(1))
+
+
+# ----------------------------------------------------------------------------- the wall
+TRUTH_MODULES = ("dt_highway.world", "dt_highway.env", "dt_highway.evaluation", "highway_env", "dt_highway.metrics")
+
+
+@pytest.mark.parametrize("path", ["dt_highway/twin/intention.py", "dt_highway/twin/cloud.py"])
+def test_the_model_imports_nothing_that_holds_the_truth(path):
+    tree = ast.parse((ROOT / path).read_text())
+    for node in ast.walk(tree):
+        names = []
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            names = [node.module or ""]
+        for name in names:
+            assert not name.startswith(TRUTH_MODULES), f"{path} imports {name}"
+
+
+def test_the_estimate_depends_only_on_the_store_and_the_records():
+    """Same fixes and records, anything else different (a twin fed by a simulator, or by hand): same intents."""
+    store, records = _scene()
+    twin = CloudTwin(TwinConfig(), ROAD)
+    twin.receive(_fixes())
+    twin.advance(10.2)  # every fix has arrived (0.1 s latency)
+    # the twin's tagger made its own records: a hand-made estimate from its store and records is the same
+    again = IntentionEstimator(IntentionConfig(), ROAD).estimate(twin.store, dict(twin.tagger.records), 10.2)
+    assert twin.intent_table is not None
+    assert twin.intent_table.intents(1) == again.intents(1)
+    by_hand = IntentionEstimator(IntentionConfig(), ROAD).estimate(store, records, 10.2)
+    assert np.array_equal(by_hand.inputs.side[:, :, :7], again.inputs.side[:, :, :7])  # what the fixes say
+    view = {v.vehicle_id: v for v in twin.view_around(0)}
+    assert view[1].intents == twin.intent_table.intents(1)
+
+
+# ----------------------------------------------------------------------------- determinism
+def _trace(seed):
+    cfg = load_config(None, ["highway.vehicles_count=10", "highway.duration=3", "twin.preroll_s=8",
+                             "traffic.population_size=40"])
+    env = DTHighwayEnv(config=cfg.to_dict())
+    env.reset(seed=seed)
+    out = []
+    for _ in range(15):
+        _, _, term, trunc, info = env.step(1)
+        out.append(json.dumps(info["twin"], default=float))
+        if term or trunc:
+            break
+    env.close()
+    return out
+
+
+def test_same_seed_same_intents_in_info():
+    a, b = _trace(3), _trace(3)
+    assert a == b
+    last = json.loads(a[-1])
+    assert last and all(len(v["intents"]) == 3 for v in last)
+    assert {"horizon_s", "p_change", "target_lane", "p_target"} <= set(last[0]["intents"][0])
+
+
+def test_training_is_deterministic():
+    rng = np.random.default_rng(0)
+    n, f = 300, len(OWN_FEATURES) + len(SIDE_FEATURES)
+    data = {"x": rng.normal(size=(n, 2, f)).astype(np.float32), "side_ok": np.ones((n, 2), bool),
+            "y": rng.integers(-1, 3, size=(n, 8)).astype(np.int8)}
+    a = fit(data, epochs=2, batch=64, hidden=8)
+    b = fit(data, epochs=2, batch=64, hidden=8)
+    for (wa, ba), (wb, bb) in zip(a[2], b[2], strict=True):
+        assert np.array_equal(wa, wb) and np.array_equal(ba, bb)
+    assert a[3] == b[3]
+
+
+# ----------------------------------------------------------------------------- configuration
+@pytest.mark.parametrize("key, value, message", [
+    ("horizons_s", [2.0, 1.0], "twin.intention"),
+    ("horizons_s", [], "twin.intention"),
+    ("operating_horizon_s", 2.5, "operating_horizon_s must be one of horizons_s"),
+    ("model", "magic", "twin.intention.model"),
+    ("threshold", 1.5, "twin.intention.threshold"),
+    ("update_hz", 0, "twin.intention.update_hz"),
+    ("weights", "no/such/file.npz", "weights file not found"),
+    ("colour", "red", "twin.intention.colour"),
+])
+def test_config_errors_name_the_key(key, value, message):
+    with pytest.raises(ConfigError) as err:
+        validate({"twin": {"intention": {key: value}}})
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_horizons_outside_the_learned_range_are_refused_when_the_twin_is_made():
+    cfg = validate({"twin": {"intention": {"horizons_s": [1.0, 6.0], "operating_horizon_s": 1.0}}})
+    with pytest.raises(ConfigError, match=r"twin.intention: the learned intention model covers horizons 0.5-4 s"):
+        CloudTwin(cfg.twin, ROAD)
+    CloudTwin(validate({"twin": {"intention": {"horizons_s": [1.0, 6.0], "operating_horizon_s": 1.0,
+                                                "model": "physics"}}}).twin, ROAD)
+
+
+def test_the_section_is_dumped_only_when_changed():
+    assert "intention" not in DTConfig().to_dict()["twin"]
+    dumped = validate({"twin": {"intention": {"threshold": 0.61}}}).to_dict()
+    assert dumped["twin"]["intention"]["threshold"] == 0.61
+    assert validate(dumped).twin.intention.threshold == 0.61
+
+
+def test_the_shipped_weights_load_without_pickles():
+    model = LearnedIntention.load(None, (1.0, 2.0, 3.0))
+    assert model.trained_horizons_s[0] <= 1.0 and model.trained_horizons_s[-1] >= 3.0
+    with np.load(ROOT / "dt_highway" / "twin" / "intention_weights.npz", allow_pickle=False) as z:
+        assert all(z[k].dtype != object for k in z.files)
+
+
+# ----------------------------------------------------------------------------- evaluation bookkeeping
+def _truth_rows():
+    """Car 5 in lane 2, centre in lane 1 from t = 3.0 on, its body over the ego's lane from 2.5 on; car 6 stays."""
+    rows = []
+    for k in range(61):
+        t = round(k * 0.1, 9)
+        rows.append((t, 5, 2 if t < 3.0 - 1e-9 else 1, t >= 2.5 - 1e-9))
+        rows.append((t, 6, 0, False))
+    return np.array(rows, dtype=float)
+
+
+def test_truth_labels_by_hand():
+    truth = Truth(_truth_rows(), 0.1)
+    rows = truth.rows_at(np.array([5, 5, 6, 6, 7]), np.array([2.0, 1.0, 2.0, 5.5, 2.0]))
+    assert rows[-1] == -1  # never on the road
+    known, changed, new = truth.labels(rows[:4], np.array([2.0, 1.0, 2.0, 5.5]), 1.5)
+    assert changed.tolist() == [True, False, False, False]  # 3.0 - 2.0 <= 1.5; 3.0 - 1.0 > 1.5
+    assert known.tolist() == [True, True, True, False]  # car 6's track ends at 6.0 < 5.5 + 1.5
+    assert new[0] == 1
+    assert truth.overlaps_between(5, 2.0, 2.6) and not truth.overlaps_between(5, 0.0, 2.4)
+
+
+def _episode(warned):
+    """Views every 0.1 s; car 5 (20 m ahead, target lane 1 = the ego's) and car 6 get the probabilities of ``warned``."""
+    inputs = IntentionInputs(np.array([5, 6]), 0.0, np.array([2, 0]), np.zeros((2, len(OWN_FEATURES))),
+                             np.zeros((2, 2, len(SIDE_FEATURES))), np.array([[True, True], [False, True]]))
+    tables, views, probs = [], [], []
+    for k in range(61):
+        t = round(k * 0.1, 9)
+        tables.append((t, inputs))
+        views.append((t, t, np.array([5, 6]), np.array([20.0, 30.0]), 1))
+        p5, p6 = warned(t)
+        probs.append(np.array([[[1 - p5, p5, 0.0]], [[1 - p6, 0.0, p6]]]))
+    cut_ins = [{"t_s": 2.5, "vehicle_id": 5, "gap_m": 15.0, "maneuver": "gentle"}]
+    return Episode(0.1, _truth_rows(), tables, views, cut_ins, 6.0), probs
+
+
+def test_warning_runs_precision_and_lead_time_by_hand():
+    # car 5 warned 0.5-1.0 s and 1.5-2.8 s (a gap of 0.5 s: one run); car 6 warned 0.0-0.3, 1.5-1.8 and
+    # 4.0-4.5 s (gaps of 1.2 s and more: three runs) and never moves
+    def within(t, *spans):
+        return any(a - 1e-9 <= t < b - 1e-9 for a, b in spans)
+
+    def warned(t):
+        return (0.9 if within(t, (0.5, 1.0), (1.5, 2.8)) else 0.1,
+                0.9 if within(t, (0.0, 0.3), (1.5, 1.8), (4.0, 4.5)) else 0.0)
+
+    ep, probs = _episode(warned)
+    runs = warning_runs(ep, Truth(ep.truth, 0.1), probs, 0, 0.5, 1.0)
+    assert [(w.vehicle_id, w.true) for w in runs] == [(5, True), (6, False), (6, False), (6, False)]  # car 6's target
+    # is lane 1 too
+    assert [(w.start_s, w.end_s) for w in runs[1:]] == [pytest.approx((0.0, 0.3)), pytest.approx((1.5, 1.8)),
+                                                          pytest.approx((4.0, 4.5))]
+    assert runs[0].start_s == pytest.approx(0.5) and runs[0].end_s == pytest.approx(2.8)
+    assert cut_in_leads(ep.cut_ins, runs, 1.0) == [pytest.approx(2.0)]  # from 0.5 s to the overlap at 2.5 s
+
+
+def test_a_warning_after_the_overlap_or_long_before_is_no_lead():
+    runs = [Warning(5, 2.6, 3.0, True), Warning(5, 0.0, 0.2, False)]
+    assert math.isnan(cut_in_leads([{"t_s": 2.5, "vehicle_id": 5}], runs, 1.0)[0])
+
+
+def test_dataset_labels_by_side():
+    ep, _ = _episode(lambda t: (0.0, 0.0))
+    data = dataset([ep], horizons_s=(1.0,))
+    # every second estimate is kept (0.0, 0.2, ...); both cars are labelled up to t = 5.0 (then car 6's track
+    # ends within the horizon); car 5 (twin lane 2) changes to lane 1 at 3.0: "left" for the estimates 2.0-2.8
+    t = np.array([t for t, _ in ep.tables[::2]])
+    t = t[t <= 5.0 + 1e-9]
+    y5 = data["y"][: 2 * len(t): 2, 0]
+    assert set(y5[(t >= 2.0 - 1e-9) & (t < 3.0 - 1e-9)].tolist()) == {1}
+    assert set(y5[t < 1.9].tolist()) == {0}
+    assert set(data["y"][1: 2 * len(t): 2, 0].tolist()) == {0}  # car 6 stays
+
+
+# ----------------------------------------------------------------------------- the commands
+def test_twin_eval_intent_on_a_tiny_input(capsys):
+    assert main(["twin-eval", "--intent", "--episodes", "1", "--seed", "5", "--json", *TINY]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["configured_model"] == "learned" and set(result["models"]) == {"learned", "physics"}
+    scores = result["models"]["learned"]
+    assert [r["horizon_s"] for r in scores["per_horizon"]] == [1.0, 2.0, 3.0]
+    assert all(r["n_samples"] > 0 for r in scores["per_horizon"])
+    assert result["operating"] == {"horizon_s": 3.0, "threshold": 0.7}
+    cut_ins = scores["cut_ins"][2]
+    assert cut_ins["horizon_s"] == 3.0 and len(cut_ins["curve"]) == 37
+    assert result["settings"]["noise_sigma_m"] == 1.0
+
+
+def test_train_intent_then_evaluate_with_the_new_weights(tmp_path, capsys):
+    out = tmp_path / "w.npz"
+    assert main(["train-intent", "--episodes", "1", "--epochs", "1", "--out", str(out), "--quiet", *TINY]) == 0
+    assert str(out) in capsys.readouterr().out
+    assert main(["twin-eval", "--intent", "--episodes", "1", "--quiet", "--set", f"twin.intention.weights={out}",
+                 *TINY]) == 0
+    assert "cut-ins in front of the ego" in capsys.readouterr().out
+
+
+def test_intent_command_mistakes_are_one_line_errors(capsys):
+    assert main(["twin-eval", "--sweep", "--quiet", *TINY]) == 2
+    assert "--sweep goes with --intent" in capsys.readouterr().err
+    assert main(["twin-eval", "--intent", "--quiet", "--set", "twin.intention.enabled=false", *TINY]) == 2
+    assert "twin.intention.enabled" in capsys.readouterr().err
+    assert main(["train-intent", "--out", "x.npz", "--alternate", "traffic.nope=1", "--quiet", *TINY]) == 2
+    assert "traffic.nope" in capsys.readouterr().err

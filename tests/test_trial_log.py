@@ -1,0 +1,58 @@
+"""Trial logs: what the recorder writes (the new safety columns, cut-in and collision events), and
+the length of a real trial (one sample per simulation step, none at reset)."""
+
+import math
+
+import pytest
+
+from dt_highway.metrics.safety import SafetySample
+from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, load_trial
+from dt_highway.study import TrialSpec, run_trial
+
+
+def _sample(t, crashed=False, collision=None, **kw):
+    base = SafetySample(t_s=t, x_m=25.0 * t, y_m=4.0, lane=1, speed_mps=25.0, accel_mps2=0.0, leader_id=3, gap_m=10.0,
+                        closing_mps=5.0, ttc_s=2.0, drac_mps2=1.25, headway_s=0.4, crashed=crashed).to_dict()
+    return {**base, **kw, "collision": collision}
+
+
+def test_the_recorder_logs_the_2d_columns_and_the_collision_with_its_partner(tmp_path):
+    collision = {"partner_id": 3, "kind": "cut_in", "lane_changer": "partner", "striker": "ego",
+                 "partner_type": "aggressive"}
+    infos = [
+        {"time_s": 0.1, "safety": {"samples": [_sample(0.1, ttc2d_s=1.25, ttc2d_id=3)], "cut_ins": [
+            {"t_s": 0.1, "vehicle_id": 3, "gap_m": 10.0, "t_lane_s": 0.0, "driver_type": "aggressive"}]}},
+        {"time_s": 0.2, "safety": {"samples": [_sample(0.2, crashed=True, collision=collision, ttc_s=math.nan,
+                                                       ttc_contact=True, ttc2d_s=math.nan, ttc2d_id=3,
+                                                       ttc2d_contact=True)], "cut_ins": []}},
+    ]
+    with TrialWriter(tmp_path / "t", {"driver": "x", "simulation_frequency_hz": 10,
+                                      "config": {"highway": {"duration": 120.0}}}) as log:
+        rec = TrialRecorder(log)
+        for info in infos:
+            rec.record(info, [0.0, 0.0])
+    trial = load_trial(tmp_path / "t")
+    assert list(trial.steps.columns) == list(STEP_COLUMNS) and "collision" not in trial.steps
+    s = trial.steps
+    assert s["ttc2d_s"].tolist()[0] == 1.25 and math.isnan(s["ttc2d_s"].tolist()[1]) and math.isnan(s["ttc_s"][1])
+    assert s["ttc_contact"].tolist() == [False, True] and s["ttc2d_contact"].tolist() == [False, True]
+    cut, col = trial.cut_ins[0], trial.collisions[0]
+    assert (cut["t_s"], cut["t_lane_s"], cut["gap_m"], cut["driver_type"]) == (0.1, 0.0, 10.0, "aggressive")
+    assert {k: col[k] for k in ("t_s", "partner_id", "partner_type", "collision_kind", "lane_changer", "striker")} == {
+        "t_s": 0.2, "partner_id": 3, "partner_type": "aggressive", "collision_kind": "cut_in", "lane_changer": "partner",
+        "striker": "ego"}
+    m = trial.metrics()
+    assert m["collision_kind"] == "cut_in" and m["collision_partner_id"] == 3 and m["cut_short"]
+    assert m["duration_s"] == pytest.approx(0.2) and m["ttc_contact_s"] == pytest.approx(0.1)
+    assert m["cut_ins"] == 1 and m["conflicts_2d"] == 1 and m["overlay_on_share"] == 0.0
+
+
+def test_a_120_s_trial_at_15_hz_has_1800_samples(tmp_path):
+    spec = TrialSpec(str(tmp_path / "t"), "agents/idm.toml", "baseline", 0, 5, "envs/highway-trial.toml",
+                     ("highway.vehicles_count=8", "twin.preroll_s=2"))
+    result = run_trial(spec)
+    assert result["status"] == "completed"
+    steps = load_trial(tmp_path / "t").steps
+    assert len(steps) == 1800 and steps["t_s"].iloc[0] == pytest.approx(1 / 15) and steps["t_s"].iloc[-1] == 120.0
+    assert result["metrics"]["n_samples"] == 1800 and result["metrics"]["duration_s"] == 120.0
+    assert not result["metrics"]["cut_short"]
