@@ -35,7 +35,8 @@ def _metas(out: Path) -> dict[str, tuple[str, str] | None]:
     return found
 
 
-def _interrupt_after_first_trial(cmd: list[str], out: Path, timeout_s: float = 60.0) -> tuple[dict, dict, str, float]:
+def _interrupt_after_first_trial(cmd: list[str], out: Path, timeout_s: float = 60.0,
+                                 stop_within_s: float = 10.0) -> tuple[dict, dict, str, float]:
     """Run the study in its own process group, SIGINT the group once a trial has completed.
 
     :return: trial states just before the signal, after the exit, the output, seconds from signal to exit
@@ -51,7 +52,7 @@ def _interrupt_after_first_trial(cmd: list[str], out: Path, timeout_s: float = 6
         before = _metas(out)
         t0 = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the workers get it too
-        output, _ = proc.communicate(timeout=10)
+        output, _ = proc.communicate(timeout=stop_within_s + 10)
         took = time.monotonic() - t0
     finally:
         if proc.poll() is None:
@@ -62,10 +63,10 @@ def _interrupt_after_first_trial(cmd: list[str], out: Path, timeout_s: float = 6
 
 
 def _check_interrupted(cmd: list[str], before: dict, after: dict, output: str, took: float,
-                       strict: bool = True) -> list[str]:
+                       strict: bool = True, stop_within_s: float = 10.0) -> list[str]:
     """``strict``: no trial may run to its end after the signal (the process pool); on Ray a trial
     handed to a worker at the moment of the signal may still finish (seen once in two runs)."""
-    assert took < 10, f"took {took:.1f} s to stop"
+    assert took < stop_within_s, f"took {took:.1f} s to stop"
     assert "Traceback" not in output, output
     assert f"resume with: dt-highway {' '.join(cmd[1:])}" in output, output
     done = [name for name, m in before.items() if m and m[0] == "completed"]
@@ -101,8 +102,10 @@ def test_ctrl_c_stops_a_study_on_a_local_ray(tmp_path):
     pytest.importorskip("ray", reason="the test extras install ray; without it this backend cannot run")
     out = tmp_path / "study"
     cmd = _command(out, "--backend", "ray")
-    before, after, output, took = _interrupt_after_first_trial(cmd, out, timeout_s=90)
-    _check_interrupted(cmd, before, after, output, took, strict=False)
+    # Ray waits up to 10 s for the cancelled tasks to close their logs, then shuts down: under load (a
+    # fresh-check with other jobs on the 2 cores) that took over 10 s once; alone it stops in ~3 s
+    before, after, output, took = _interrupt_after_first_trial(cmd, out, timeout_s=90, stop_within_s=20.0)
+    _check_interrupted(cmd, before, after, output, took, strict=False, stop_within_s=20.0)
 
 
 def test_study_refuses_an_out_directory_that_is_not_a_study(tmp_path, capsys):
