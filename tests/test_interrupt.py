@@ -98,7 +98,7 @@ def test_ctrl_c_stops_a_study_in_seconds_and_the_same_command_resumes_it(tmp_pat
         assert (out / "trials" / name / "steps.csv").read_bytes() == data
 
 
-@pytest.mark.xfail(strict=False, reason="known limit, open in issue 21: on a loaded machine a local Ray study has been seen to "
+@pytest.mark.xfail(strict=False, reason="known limit (issue 21): on a loaded machine a local Ray study has been seen to "
                    "take over 10 s to stop, and once to run all its trials to the end after Ctrl-C (exit 0)")
 def test_ctrl_c_stops_a_study_on_a_local_ray(tmp_path):
     pytest.importorskip("ray", reason="the test extras install ray; without it this backend cannot run")
