@@ -148,11 +148,16 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
                 f"precision {r['precision_at_recall_0_80']:.3f} at recall >= 0.80"
             )
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(dump_json(result) + "\n")
-        print(f"wrote {out}", file=sys.stderr)
+        _write_result(args.out, result)
     return 0
+
+
+def _write_result(path: str, result: Any) -> None:
+    """Write a command's JSON result to ``path`` (``--out FILE``), creating its folder, and say where."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(dump_json(result) + "\n")
+    print(f"wrote {out}", file=sys.stderr)
 
 
 def _twin_eval_intent(args: argparse.Namespace) -> int:
@@ -172,10 +177,7 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(dump_json(result) + "\n")
-        print(f"wrote {out}", file=sys.stderr)
+        _write_result(args.out, result)
     return 0
 
 
