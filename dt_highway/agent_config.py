@@ -204,8 +204,120 @@ def parse_driver_file(tree: dict[str, Any]) -> HumanDriverFile | IDMDriverFile |
         raise config_error(exc, _DRIVER_FILES[kind], prefix="", skip=1) from None
 
 
+# ----------------------------------------------------------------------------- reward terms of training files
+class CollisionCost(BaseModel):
+    """Cost of a collision of the ego, by its kind (:data:`~dt_highway.metrics.safety.COLLISION_KINDS`,
+    as the trial logs classify it) [-, per collision].
+
+    :param cut_in: with a vehicle that cut in front of the ego within the last 5 s
+    :param rear_end: front to rear (either striker)
+    :param side_swipe: side contact
+    :param unknown: no partner found
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    cut_in: float = Field(0.0, ge=0, description="cost of a cut-in collision [-]")
+    rear_end: float = Field(0.0, ge=0, description="cost of a rear-end collision [-]")
+    side_swipe: float = Field(0.0, ge=0, description="cost of a side-swipe collision [-]")
+    unknown: float = Field(0.0, ge=0, description="cost of a collision of unknown kind [-]")
+
+
+class TTCCost(BaseModel):
+    """Exposure to a small 2-D time to collision (Jiao 2023, as the trial logs' ``ttc2d_s``), after
+    Minderhoud & Bovy's (2001) TET/TIT with threshold ``TTC*``.
+
+    :param weight: cost per unit of exposure [1/s] (``tet``) or [1/s^2] (``tit``)
+    :param threshold_s: ``TTC*`` [s]
+    :param mode: ``tet``: time exposed, ``sum dt [TTC <= TTC*]`` [s]; ``tit``: time integrated,
+        ``sum dt (TTC* - TTC) [TTC <= TTC*]`` [s^2]
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    weight: float = Field(0.0, ge=0, description="cost per second (tet) or second^2 (tit) of exposure")
+    threshold_s: float = Field(3.0, gt=0, le=10, description="TTC* [s]")
+    mode: Literal["tet", "tit"] = Field("tet", description="tet: time exposed; tit: time-integrated TTC deficit")
+
+
+class BrakingCost(BaseModel):
+    """Hard braking: ``sum dt max(0, -a - threshold)`` over the simulation steps, the speed shed
+    beyond the threshold deceleration [m/s].
+
+    :param weight: cost per m/s [s/m]
+    :param threshold_mps2: deceleration from which braking costs [m/s^2]
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    weight: float = Field(0.0, ge=0, description="cost per m/s shed beyond the threshold [s/m]")
+    threshold_mps2: float = Field(3.0, ge=0, le=10, description="deceleration from which braking costs [m/s^2]")
+
+
+class ProgressReward(BaseModel):
+    """Progress: ``distance``, the metres the ego travelled along the road [m]; or ``speed``,
+    ``sum dt max(0, 1 - |v - v*| / v*)``, time near the target speed ``v*`` [s].
+
+    :param weight: reward per metre [1/m] (``distance``) or per second at the target speed [1/s] (``speed``)
+    :param mode: ``distance`` or ``speed``
+    :param target_mps: ``v*`` [m/s] (``speed``)
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    weight: float = Field(0.0, ge=0, description="reward per metre (distance) or per second at v* (speed)")
+    mode: Literal["distance", "speed"] = Field("distance", description="distance: metres travelled; speed: time near v*")
+    target_mps: float = Field(27.0, gt=0, le=45, description="speed: the target speed v* [m/s]")
+
+
+class JerkCost(BaseModel):
+    """Comfort: longitudinal jerk, ``sum dt |j|`` = ``sum |a_k - a_(k-1)|`` over the simulation steps,
+    the total variation of the acceleration [m/s^2].
+
+    :param weight: cost per m/s^2 of acceleration change [s^2/m]
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    weight: float = Field(0.0, ge=0, description="cost per m/s^2 of acceleration change [s^2/m]")
+
+
+class RewardConfig(BaseModel):
+    """The training reward (``[reward]`` of a training file; :mod:`dt_highway.rl.rewards` computes it).
+
+    ``reward = highway * r_highway + progress - collision - ttc2d - hard_braking - jerk`` per
+    policy step, each term summed over the step's simulation steps. The defaults are highway-env's
+    reward alone, exactly (the shipped policies' reward). Example::
+
+        [reward]
+        highway = 1.0
+        collision = {cut_in = 20.0, rear_end = 20.0, side_swipe = 20.0, unknown = 20.0}
+        ttc2d = {weight = 1.0, threshold_s = 3.0, mode = "tet"}
+
+    :param highway: weight of highway-env's own reward (``collision_reward``, ``high_speed_reward``... of the scenario) [-]
+    :param collision: cost per collision, by kind
+    :param ttc2d: exposure to a small 2-D TTC
+    :param hard_braking: braking beyond a threshold
+    :param progress: distance travelled or time near a target speed
+    :param jerk: comfort
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    highway: float = Field(1.0, ge=0, description="weight of highway-env's reward [-]")
+    collision: CollisionCost = Field(default_factory=CollisionCost, description="cost per collision, by kind")
+    ttc2d: TTCCost = Field(default_factory=TTCCost, description="2-D TTC exposure (TET/TIT)")
+    hard_braking: BrakingCost = Field(default_factory=BrakingCost, description="braking beyond a threshold")
+    progress: ProgressReward = Field(default_factory=ProgressReward, description="distance or speed toward a target")
+    jerk: JerkCost = Field(default_factory=JerkCost, description="longitudinal jerk")
+
+    def is_highway_only(self) -> bool:
+        """Whether this is highway-env's reward alone, unscaled (the default: no wrapper needed)."""
+        return self == RewardConfig()
+
+
 # ----------------------------------------------------------------------------- training files
-OBSERVATIONS = ("kinematics", "adas", "vision")
+OBSERVATIONS = ("kinematics", "adas", "adas-threat", "vision")
 ALGORITHMS = ("PPO", "DQN")
 VISION_CAMERA = {"width_px": 128, "height_px": 72}
 """Camera size of the vision setting unless the scenario or ``set`` says otherwise [px]"""
@@ -233,6 +345,10 @@ class TrainConfig(BaseModel):
       "aggressive driver" marker on that car (:class:`~dt_highway.env.OverlayKinematics`):
       the twin's verdict as delivered through the fusion and the overlay, never ground truth.
       It trains in the ADAS condition (camera and fusion on).
+    * ``adas-threat``: ``adas`` plus ``cut_in_warned`` (1 where a mark on that car reads "cutting in")
+      and ``side`` (the side the label says it comes from: -1 left, +1 right, 0 not said), from
+      the marks as drawn (:class:`~dt_highway.env.OverlayKinematics` with ``threat = true``). It
+      trains in the ``adas-threat`` condition (the overlay's ``threat`` mode).
     * ``vision``: the ego camera's ``rgb`` image (and ``depth`` with ``depth = true``) for a CNN
       policy (stable-baselines3's ``MultiInputPolicy``); the camera is made small for it.
 
@@ -240,14 +356,21 @@ class TrainConfig(BaseModel):
     (:class:`~dt_highway.env.actions.DiscreteDriverAction`): ``pedals``, keep the lane with
     one of ``accels_mps2`` or ask for one lane left or right; ``assisted``
     (:class:`~dt_highway.drivers.menus.AssistedMenu`), choose one of ``speeds_mps`` as desired
-    speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap.
+    speed or a lane change (taken when safe), the Intelligent Driver Model keeping the gap;
+    ``assisted-delayed``, the same menu whose gap keeping reacts like a driver who was not warned:
+    a car newly in the lane ahead is followed only ``reaction_time_s`` after it appeared, and it
+    brakes at most ``brake_limit_mps2``.
+
+    Reward (``[reward]``, :class:`RewardConfig`): highway-env's reward by default; safety terms
+    (collisions by kind, 2-D TTC exposure, hard braking, progress, jerk) with their weights.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     kind: Literal["rl"] = "rl"
     algorithm: Literal["PPO", "DQN"] = Field("PPO", description="stable-baselines3 algorithm")
-    observation: Literal["kinematics", "adas", "vision"] = Field("kinematics", description="observation setting")
+    observation: Literal["kinematics", "adas", "adas-threat", "vision"] = Field("kinematics",
+                                                                                description="observation setting")
     depth: bool = Field(False, description="vision: also the depth image")
     scenario: str = Field("envs/highway-trial.toml", description="scenario file the policy trains on")
     set: list[str] = Field(default_factory=list, description="dotted.key=value overrides of the scenario")
@@ -256,10 +379,16 @@ class TrainConfig(BaseModel):
     seed: int = Field(0, ge=0, description="seed of the model and of the training envs")
     vehicles_count: int = Field(7, ge=2, le=30, description="kinematics/adas: observed vehicles, ego included [-]")
     see_behind: bool = Field(True, description="kinematics/adas: observe vehicles behind too")
-    action: Literal["pedals", "assisted"] = Field(
+    action: Literal["pedals", "assisted", "assisted-delayed"] = Field(
         "pedals",
-        description="pedals: choose accelerations; assisted: choose a desired speed or a lane, IDM keeps the gap",
+        description="pedals: choose accelerations; assisted: choose a desired speed or a lane, IDM keeps the gap; "
+        "assisted-delayed: the same, IDM reacting like an unwarned driver",
     )
+    reaction_time_s: float = Field(1.2, ge=0, le=3, description="assisted-delayed: time before the gap keeping "
+                                   "responds to a car newly in the lane ahead [s]")
+    brake_limit_mps2: float = Field(6.0, gt=0, le=-ACCEL_MIN_MPS2, description="assisted-delayed: hardest braking "
+                                    "of the gap keeping [m/s^2]")
+    reward: RewardConfig = Field(default_factory=RewardConfig, description="the training reward's terms")
     accels_mps2: list[float] = Field(default_factory=lambda: list(DEFAULT_DISCRETE_ACCELS_MPS2),
                                      description="pedals: accelerations of the action menu [m/s^2]")
     speeds_mps: list[float] = Field(default_factory=lambda: list(DEFAULT_SPEEDS_MPS),
@@ -285,7 +414,7 @@ class TrainConfig(BaseModel):
 
         :raises ConfigError: on a bad scenario or override
         """
-        condition = condition or ("adas" if self.observation == "adas" else "baseline")
+        condition = condition or {"adas": "adas", "adas-threat": "adas-threat"}.get(self.observation, "baseline")
         extra = condition_config(condition)
         extra["highway"] = {"observation": self.observation_config(), "action": self.action_config()}
         if self.observation == "vision":
@@ -296,11 +425,17 @@ class TrainConfig(BaseModel):
         """The ``highway.observation`` table of this setting."""
         if self.observation == "vision":
             return {"type": "Camera", "depth": self.depth}
-        kind = "OverlayKinematics" if self.observation == "adas" else "Kinematics"
-        return {"type": kind, "vehicles_count": self.vehicles_count, "see_behind": self.see_behind}
+        kind = "OverlayKinematics" if self.observation in ("adas", "adas-threat") else "Kinematics"
+        table: dict[str, Any] = {"type": kind, "vehicles_count": self.vehicles_count, "see_behind": self.see_behind}
+        if self.observation == "adas-threat":
+            table["threat"] = True
+        return table
 
     def action_config(self) -> dict[str, Any]:
         """The ``highway.action`` table: the discrete menu over the Driver action."""
+        if self.action == "assisted-delayed":
+            return {"type": "DiscreteDriver", "assist": True, "speeds_mps": list(self.speeds_mps),
+                    "reaction_time_s": self.reaction_time_s, "brake_limit_mps2": self.brake_limit_mps2}
         if self.action == "assisted":
             return {"type": "DiscreteDriver", "assist": True, "speeds_mps": list(self.speeds_mps)}
         return {"type": "DiscreteDriver", "accels_mps2": list(self.accels_mps2)}

@@ -19,6 +19,7 @@ import highway_env  # noqa: F401  (registers highway-v0)
 import numpy as np
 import pygame
 
+from dt_highway.agent_config import TrainConfig
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.scene import RoadScene, VehicleSet
@@ -456,4 +457,177 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
         "target_ratio": 5.0,
         "target_met": bool(rates["ours_driver_types"] >= 5 * stock_rate and rates["ours_plain_idm"] >= 5 * stock_rate
                            and rates["ours_adas_pipeline"] >= stock_rate),
+    }
+
+
+TRAIN_TARGET_STEPS_PER_S = 300.0
+"""PPO steps/s the fast training path should reach on 2 cores with the kinematic settings [1/s]"""
+
+
+def _load_1min() -> float:
+    """The machine's 1-minute load average (``uptime``) [-] (NaN where there is none)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except OSError:
+        return float("nan")
+
+
+def _cpu_s(pids: list[int]) -> float:
+    """CPU time (user + system) the processes ``pids`` have used so far [s] (Linux ``/proc``; NaN elsewhere)."""
+    try:
+        total = 0
+        for pid in pids:
+            with open(f"/proc/{pid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])  # utime, stime [clock ticks]
+        return total / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def _env_only(make: Callable[[], gym.Env], steps: int, seed: int) -> dict[str, Any]:
+    """``steps`` env steps, one process, random actions drawn from ``seed`` (the same for every env).
+
+    :return: reset time [s] (the first, with its pre-roll), steps/s after it (later resets included),
+        the observations and rewards
+    """
+    env = make()
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter()
+    obs, _ = env.reset()
+    reset_s = time.perf_counter() - t0
+    n_actions = int(env.action_space.n)  # type: ignore[attr-defined]  # the discrete menus of the kinematic settings
+    seen, rewards, load = [np.asarray(obs)], [], _load_1min()
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(int(rng.integers(n_actions)))
+        seen.append(np.asarray(obs))
+        rewards.append(float(reward))
+        if terminated or truncated:
+            seen.append(np.asarray(env.reset()[0]))
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    env.close()
+    return {"reset_s": round(reset_s, 3), "steps_per_s": round(steps / wall, 1),
+            "steps_per_cpu_s": round(steps / cpu, 1) if cpu > 0 else None, "load_1min": load,
+            "obs": np.stack(seen), "rewards": np.asarray(rewards)}
+
+
+def _ppo_run(cfg: TrainConfig, env_dict: dict[str, Any], n_envs: int, timesteps: int,
+             progress: Callable[[int], None] | None) -> dict[str, Any]:
+    """Train PPO (or the file's algorithm) for ``timesteps`` as ``dt-highway train`` does (same env
+    factories, reward, seeds, model), without evaluations or checkpoints, and time it.
+
+    :return: steps, wall time of ``learn`` [s] (workers' start-up apart, ``setup_s``), steps/s, and the
+        split: the learner's updates (``update_s``, its ``train()`` calls) and the rest, collecting
+        rollouts (``collect_s``: env steps with their resets, the policy's forward passes) [s]; the CPU
+        time of the learner and the workers over ``learn`` (``cpu_s`` [s], a figure that the other
+        programs on a shared machine change less than the wall time) and steps per CPU second
+    """
+    from stable_baselines3.common.callbacks import BaseCallback  # lazy: torch (~1.3 s), only this benchmark
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv  # lazy: torch, only this benchmark
+
+    from dt_highway.rl.train import _close, _make_env, build_model  # lazy: torch
+
+    class Progress(BaseCallback):
+        def _on_step(self) -> bool:
+            if progress is not None:
+                progress(self.training_env.num_envs)
+            return True
+
+    t0 = time.perf_counter()
+    factories = [_make_env(env_dict, cfg.seed * 1_000_000 + i, n_envs, cfg.reward) for i in range(n_envs)]
+    venv = SubprocVecEnv(factories, start_method="spawn") if n_envs > 1 else DummyVecEnv(factories)
+    setup_s = time.perf_counter() - t0
+    load = _load_1min()
+    try:
+        model = build_model(cfg.model_copy(update={"n_envs": n_envs}), venv)
+        learner_s = [0.0]
+        algo: Any = model  # an on-policy algorithm: its train() is one update after each rollout
+        update = algo.train
+
+        def timed_update() -> None:  # the learner's share: stable-baselines3's train() after each rollout
+            t = time.perf_counter()
+            update()
+            learner_s[0] += time.perf_counter() - t
+
+        algo.train = timed_update
+        workers = [p.pid for p in getattr(venv, "processes", []) if p.pid is not None]
+        t0, c0, w0 = time.perf_counter(), time.process_time(), _cpu_s(workers)
+        model.learn(timesteps, callback=Progress())
+        wall = time.perf_counter() - t0
+        cpu = time.process_time() - c0 + (_cpu_s(workers) - w0 if workers else 0.0)
+    finally:
+        _close(venv)
+    steps = int(model.num_timesteps)
+    return {"n_envs": n_envs, "vec_env": type(venv).__name__, "steps": steps, "setup_s": round(setup_s, 2),
+            "wall_s": round(wall, 2), "steps_per_s": round(steps / wall, 1),
+            "collect_s": round(wall - learner_s[0], 2), "update_s": round(learner_s[0], 2),
+            "collect_steps_per_s": round(steps / (wall - learner_s[0]), 1),
+            "cpu_s": round(cpu, 2), "steps_per_cpu_s": round(steps / cpu, 1) if cpu > 0 else None,
+            "load_1min_before": load, "load_1min_after": _load_1min()}
+
+
+def bench_train(cfg: TrainConfig, timesteps: int = 8192, n_envs: int = 4, env_steps: int = 600, seed: int = 0,
+                progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """Training throughput of a training file: today's path beside the fast one, in one run.
+
+    * **today**: what ``dt-highway train`` did before the fast path, the training file's env
+      (twin, camera, fusion... all on) in ``cfg.n_envs`` envs (``DummyVecEnv`` for one);
+    * **fast**: the env of :func:`~dt_highway.rl.train.lean_env_config` (what the observation
+      and the reward do not read, off) in ``n_envs`` ``SubprocVecEnv`` workers of one torch and one
+      OpenCV thread each, the learner on one torch thread.
+
+    Measured: env-only steps/s of each env in this process (the same seeded episode, the same
+    random actions), whether their observations and rewards are identical (the fast path's
+    promise; ``marked_entries`` counts the ``marked`` cells that were 1, so that an ``adas``
+    comparison is not an empty one), and PPO steps/s of each path over ``timesteps`` (its
+    ``learn`` call; workers' start-up apart), split into collecting rollouts and the learner's updates.
+    The machine's load (``uptime``) is given beside each number, and the CPU time each path used
+    (steps per CPU second: on ``k`` free cores a path cannot beat ``k`` times it).
+
+    :param cfg: the training configuration (:class:`~dt_highway.agent_config.TrainConfig`)
+    :param timesteps: PPO steps per path (rounded up to whole rollouts by stable-baselines3) [-]
+    :param n_envs: worker processes of the fast path [-] (two per core: a worker's reset, its 60 s pre-roll,
+        then stalls one of them, not a core; 4 on 2 cores gave 301 PPO steps/s where 2 gave 262, load ~2)
+    :param env_steps: env steps of the env-only measurement [-]
+    :param seed: seed of the env-only episode and its random actions
+    :param progress: called with the number of steps done (env-only, then PPO)
+    :return: ``env_only``, ``ppo`` (``today`` and ``fast`` each), ``speedup``, the target and whether it is met
+    """
+    import torch  # lazy: ~1.3 s, only this benchmark
+
+    from dt_highway.rl.train import _make_env, lean_env_config  # lazy: torch
+
+    env_cfg = cfg.env_config()
+    lean_cfg, switched_off = lean_env_config(env_cfg)
+    full_dict, lean_dict = env_cfg.to_dict(), lean_cfg.to_dict()
+    if cfg.observation != "vision":
+        torch.set_num_threads(1)  # as dt-highway train: a small MLP, one thread
+    env_only: dict[str, Any] = {}
+    for name, d in (("today", full_dict), ("fast", lean_dict)):
+        env_only[name] = _env_only(_make_env(d, seed, 1, cfg.reward), env_steps, seed)
+        if progress is not None:
+            progress(env_steps)
+    a, b = env_only["today"], env_only["fast"]
+    same_obs = a["obs"].shape == b["obs"].shape and bool(np.array_equal(a["obs"], b["obs"]))
+    same_rewards = bool(np.array_equal(a["rewards"], b["rewards"]))
+    column = {"adas": -1, "adas-threat": -3}.get(cfg.observation)  # the ``marked`` column
+    marked = int(np.sum(a["obs"][..., column] == 1.0)) if column is not None else None
+    for r in env_only.values():
+        del r["obs"], r["rewards"]
+    ppo = {"today": _ppo_run(cfg, full_dict, cfg.n_envs, timesteps, progress),
+           "fast": _ppo_run(cfg, lean_dict, n_envs, timesteps, progress)}
+    fast = ppo["fast"]["steps_per_s"]
+    kinematic = cfg.observation in ("kinematics", "adas")
+    return {
+        "config": {"observation": cfg.observation, "action": cfg.action, "scenario": cfg.scenario,
+                   "algorithm": cfg.algorithm},
+        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "switched_off": switched_off,
+        "env_only": {**env_only, "steps": env_steps, "seed": seed, "same_observations": same_obs,
+                     "same_rewards": same_rewards, "marked_entries": marked},
+        "ppo": ppo,
+        "speedup": round(fast / ppo["today"]["steps_per_s"], 2),
+        "target_steps_per_s": TRAIN_TARGET_STEPS_PER_S if kinematic else None,
+        "target_met": bool(fast >= TRAIN_TARGET_STEPS_PER_S) if kinematic else None,
     }

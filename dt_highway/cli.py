@@ -23,7 +23,15 @@ import gymnasium as gym
 from tqdm import tqdm
 
 from dt_highway._version import __version__
-from dt_highway.bench import bench_camera, bench_detector, bench_drive, bench_fusion, bench_memory, bench_sim
+from dt_highway.bench import (
+    bench_camera,
+    bench_detector,
+    bench_drive,
+    bench_fusion,
+    bench_memory,
+    bench_sim,
+    bench_train,
+)
 from dt_highway.conditions import CONDITIONS, condition_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge, parse_override
 from dt_highway.drivers import load_driver
@@ -41,9 +49,12 @@ from dt_highway.evaluation.intent import (
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import evaluate as evaluate_driver
+from dt_highway.evaluation.tagger_train import train_tagger, training_steps
 from dt_highway.evaluation.twin import episode_steps, evaluate_twin
-from dt_highway.hmi.drive import DriveOptions, run_drive
+from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol
+from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, parse_size, run_drive
 from dt_highway.hmi.keys import KeyScript, KeyScriptError
+from dt_highway.hmi.replay import replay_trial
 from dt_highway.hmi.session import condition_order, run_session
 from dt_highway.jsonio import dump_json
 from dt_highway.rl.config import load_train_config
@@ -86,6 +97,21 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
     p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
     p.add_argument("--steering", action="store_true", help="Left/Right steer (self-centring) instead of changing lanes")
+    p.add_argument("--size", type=_window_size, metavar="WxH",
+                   help="window and camera size in pixels, e.g. 1280x720 (default: the camera's, 640x360)")
+    p.add_argument("--fullscreen", action="store_true", help="fill the screen (the picture scaled, its aspect kept)")
+    p.add_argument("--on-crash", choices=CRASH_POLICIES, default="end",
+                   help="end: a crash ends the trial (status ended_by_collision); continue: the ego is put back in "
+                        "its lane with a clear gap and the trial goes on, crashes counted (default end)")
+    p.add_argument("--mirrors", action="store_true", help="draw the rear-view mirror (when dt_highway.camera.mirror exists)")
+    p.add_argument("--no-sound", action="store_true", help="no beep on a crash")
+
+
+def _window_size(text: str) -> tuple[int, int]:
+    try:
+        return parse_size(text)
+    except ConfigError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def _add_config_args(p: argparse.ArgumentParser, default_scenario: str | None = None) -> None:
@@ -147,6 +173,9 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
                 f"{r['auc_latent_above_median']:.3f}, Spearman vs latent {r['spearman_latent']:.3f}; "
                 f"precision {r['precision_at_recall_0_80']:.3f} at recall >= 0.80"
             )
+            c = r["ceiling"]
+            print(f"ceiling (a ranking by every driver's true parameters): AUC vs label {c['auc_label']:.3f}, "
+                  f"precision {c['precision_at_recall_0_80']:.3f} at recall >= 0.80")
     if args.out:
         _write_result(args.out, result)
     return 0
@@ -178,6 +207,18 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
     print(dump_json(result) if args.json else "\n".join(lines))
     if args.out:
         _write_result(args.out, result)
+    return 0
+
+
+def cmd_train_tagger(args: argparse.Namespace) -> int:
+    """Fit the twin's evidence tagger on simulated training seeds (the continuum by default)."""
+    args.overrides = [f"traffic.population={args.population}", *args.overrides]
+    cfg = _config(args)
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    with _progress(training_steps(cfg, seeds, args.episodes), "train-tagger", args.quiet) as bar:
+        summary = train_tagger(cfg, seeds, args.episodes, args.out, progress=bar.update)
+    print(f"{summary['samples']} drivers ({summary['aggressive']} aggressive) from seeds {seeds[0]}-{seeds[-1]}, "
+          f"training AUC {summary['train_auc']:.3f}; wrote {args.out}")
     return 0
 
 
@@ -364,7 +405,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     result = run_drive(opts)
     print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
           + (f", {result['screenshots']} screenshots" if result["screenshots"] else ""))
-    return 0 if result["status"] == "completed" else 1
+    return 0 if result["status"] in ("completed", "ended_by_collision") else 1  # a crash under --on-crash end: saved
 
 
 def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
@@ -380,19 +421,25 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
         practice=getattr(args, "practice", False), scenario=find_file_or_default(args.scenario),
         overrides=list(args.overrides), duration_s=args.duration, seed=args.seed, keys_from=script,
         screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
-        fps=args.fps, minimap=not args.no_minimap, steering=args.steering)
+        fps=args.fps, minimap=not args.no_minimap, steering=args.steering, size=args.size, fullscreen=args.fullscreen,
+        on_crash=args.on_crash, mirrors=args.mirrors, sound=not args.no_sound)
 
 
 def cmd_session(args: argparse.Namespace) -> int:
-    """A participant's session: practice, the conditions counterbalanced, breaks between."""
+    """A participant's session: briefing, practice in every condition, the conditions counterbalanced
+    with questionnaires after each, an end screen."""
     base = _drive_options(args, "baseline")
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     order = condition_order(base.participant, conditions)
-    print(f"session of {base.participant} in {base.out}: practice, then {', '.join(order)}")
-    results = run_session(base, args.practice_duration, conditions=conditions)
-    done, n = sum(r["status"] in ("completed", "skipped") for r in results), len(order) + 1
-    print(f"{done} of {n} trials done" + ("" if done == n else ": run the same command again to go on"))
-    return 0 if done == n else 1
+    protocol = load_protocol(args.protocol)
+    answers = Path(args.answers_from) if args.answers_from else None
+    print(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice {', '.join(order)}, "
+          f"then {', '.join(order)}")
+    outcome = run_session(base, args.practice_duration, conditions=conditions, protocol=protocol, answers_from=answers)
+    done, n = sum(t["status"] in ("completed", "skipped") for t in outcome.trials), len(outcome.trials)
+    print(f"{done} of {n} trials done" + (f"; stopped: {outcome.stopped}" if outcome.stopped else "")
+          + ("" if outcome.complete else ": run the same command again to go on"))
+    return 0 if outcome.complete else 1
 
 
 def _participant(text: str) -> str:
@@ -400,6 +447,23 @@ def _participant(text: str) -> str:
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}", text or ""):
         raise ConfigError(f"--participant must be 1-64 letters, digits, '-' or '_' (got {text!r})")
     return text
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Play a logged keyboard trial back, in the window or as PNG frames (``--frames-out``)."""
+    if args.every_s is not None and not args.frames_out:
+        raise ConfigError("--every-s S needs --frames-out DIR")
+    result = replay_trial(args.trial, frames_out=args.frames_out, every_s=args.every_s, window=not args.frames_out,
+                          speed=args.speed)
+    where = f", {result.frames} frames in {result.frames_dir}" if result.frames_dir is not None else ""
+    where += " (stopped in the window)" if result.stopped else ""
+    if result.followed_log:
+        print(f"replayed {result.steps} steps of {args.trial}{where}: the ego followed the log "
+              f"(largest position difference {result.max_deviation_m:.3g} m)")
+        return 0
+    print(f"replayed {result.steps} steps of {args.trial}{where}: the ego left the logged path at "
+          f"t = {result.diverged_at_s:.2f} s (largest difference {result.max_deviation_m:.3g} m)")
+    return 1
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -731,6 +795,37 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench_train(args: argparse.Namespace) -> int:
+    cfg = load_train_config(args.config)
+    total = 2 * args.env_steps + 2 * args.timesteps  # PPO rounds up to whole rollouts: about
+    with _progress(total, "bench train", args.quiet or args.json) as bar:
+        result = bench_train(cfg, args.timesteps, args.n_envs, args.env_steps, args.seed, progress=bar.update)
+    if args.json:
+        print(dump_json(result))
+        return 0
+    c, e, p = result["config"], result["env_only"], result["ppo"]
+    print(f"bench train {args.config} ({c['observation']}, {c['action']}, {c['algorithm']}), {result['cpus']} CPUs; "
+          f"the fast path switches off: {', '.join(result['switched_off']) or 'nothing'}")
+    t, f = e["today"], e["fast"]
+    marked = f" ({e['marked_entries']} marked cells)" if e["marked_entries"] is not None else ""
+    print(f"env only, one process, {e['steps']} steps of seed {e['seed']}: today {t['steps_per_s']} steps/s "
+          f"({t['steps_per_cpu_s']} per CPU second, first reset {t['reset_s']} s, load {t['load_1min']}), "
+          f"fast {f['steps_per_s']} steps/s ({f['steps_per_cpu_s']} per CPU second, first reset {f['reset_s']} s, "
+          f"load {f['load_1min']}); same observations: {'yes' if e['same_observations'] else 'NO'}, "
+          f"same rewards: {'yes' if e['same_rewards'] else 'NO'}{marked}")
+    for name in ("today", "fast"):
+        r = p[name]
+        print(f"{c['algorithm']} {name}: {r['steps_per_s']} steps/s ({r['n_envs']} env{'s' if r['n_envs'] > 1 else ''}, "
+              f"{r['vec_env']}; {r['steps']} steps in {r['wall_s']} s: collecting {r['collect_s']} s = "
+              f"{r['collect_steps_per_s']} steps/s, learner {r['update_s']} s; {r['steps_per_cpu_s']} steps per CPU "
+              f"second; load {r['load_1min_before']} -> {r['load_1min_after']})")
+    target = result["target_steps_per_s"]
+    verdict = "" if target is None else \
+        f"; target {target:g} steps/s: {'met' if result['target_met'] else 'NOT met'}"
+    print(f"speedup x{result['speedup']}{verdict}")
+    return 0
+
+
 def cmd_bench_detector(args: argparse.Namespace) -> int:
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
@@ -811,6 +906,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_intent)
 
+    p = sub.add_parser("train-tagger", help="fit the twin's evidence tagger (twin.tagger.model=evidence) on simulated "
+                       "training seeds")
+    _add_config_args(p)
+    p.add_argument("--out", required=True, help="weights file to write (.json; the shipped one is "
+                   "dt_highway/twin/tagger_evidence.json)")
+    p.add_argument("--population", choices=("continuum", "two_class"), default="continuum",
+                   help="the drivers to learn from (default continuum)")
+    p.add_argument("--seeds", type=_positive(int, "--seeds"), default=5, help="training seeds (default 5)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="first training seed (default 0; the docs' held-out evaluation uses seed 100)")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=3, help="episodes per seed (default 3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train_tagger)
+
     p = sub.add_parser("camera", help="write sample frames of the ego camera (RGB, depth, instance ids, boxes) as PNGs")
     _add_config_args(p)
     p.add_argument("--out", required=True, help="output directory")
@@ -865,9 +974,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="conditions, in a balanced Latin square order by participant (default baseline,adas; e.g. "
                         "baseline,adas-threat,sham)")
     p.add_argument("--out", default="runs/keyboard-study", help="study directory (default runs/keyboard-study)")
-    p.add_argument("--practice-duration", type=_positive(float, "--practice-duration"), default=60.0,
-                   help="practice trial length [s] (default 60)")
+    p.add_argument("--practice-duration", type=_positive(float, "--practice-duration"),
+                   help="each practice trial's length [s] (one per condition; default: the protocol's, 30)")
+    p.add_argument("--protocol", metavar="FILE",
+                   help=f"what the participant reads and which questionnaires follow which trials (default: the "
+                        f"packaged {DEFAULT_PROTOCOL.name}; copy it to change it)")
+    p.add_argument("--answers-from", metavar="FILE",
+                   help="scripted questionnaire answers (JSON or TOML), with --keys-from")
     p.set_defaults(func=cmd_session)
+
+    p = sub.add_parser("replay", help="play a logged keyboard trial back (its seed, config and actions), in the window "
+                                      "or as PNG frames")
+    p.add_argument("trial", metavar="TRIAL_DIR", help="the trial's directory, e.g. runs/keyboard-study/trials/P01-adas")
+    p.add_argument("--frames-out", metavar="DIR", help="write PNG frames to DIR, no window (headless)")
+    p.add_argument("--every-s", type=_positive(float, "--every-s"), metavar="S",
+                   help="with --frames-out: a frame every S seconds of trial time (default every simulation step)")
+    p.add_argument("--speed", type=_positive(float, "--speed"), default=1.0,
+                   help="in the window: times real time (default 1; Space pauses, Esc stops)")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("train", help="train an RL driver (stable-baselines3) from agents/<name>.toml")
     p.add_argument("--config", required=True, help="training config, e.g. agents/ppo-baseline.toml (kind = \"rl\")")
@@ -995,6 +1119,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", metavar="FILE", help="also write a cProfile of our env (driver types) to FILE")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_sim)
+    p = bsub.add_parser("train", help="RL training steps/s: today's path and the fast path (lean env, worker processes)")
+    p.add_argument("--config", required=True, help="training config, e.g. agents/ppo-adas.toml (kind = \"rl\")")
+    p.add_argument("--timesteps", type=_positive(int, "--timesteps"), default=8192,
+                   help="PPO steps per path, rounded up to whole rollouts (default 8192)")
+    p.add_argument("--n-envs", type=_positive(int, "--n-envs"), default=4,
+                   help="worker processes of the fast path (default 4: two per core of a 2-core machine)")
+    p.add_argument("--env-steps", type=_positive(int, "--env-steps"), default=600,
+                   help="env steps of the env-only comparison (default 600)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the env-only episode (default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench_train)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

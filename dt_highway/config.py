@@ -108,16 +108,21 @@ ACTION_TYPES = (*HIGHWAY_ENV_ACTION_TYPES, "Driver", "DiscreteDriver")
 
 KINEMATICS_OPTIONS = ("type", "features", "vehicles_count", "features_range", "absolute", "order", "normalize", "clip",
                       "see_behind", "observe_intentions", "include_obstacles")
-"""Keys of a Kinematics observation table (highway-env 1.12's ``KinematicObservation``; ours adds no key)"""
+"""Keys of a Kinematics observation table (highway-env 1.12's ``KinematicObservation``; ``OverlayKinematics``
+also takes ``threat``)"""
 
 
 def _check_kinematics_options(table: dict[str, Any]) -> None:
     """Refuse what highway-env's Kinematics would silently accept or fail on later: an unknown
     option, ``vehicles_count`` below 1, an ``order`` other than sorted/shuffled."""
+    overlay = table.get("type") == "OverlayKinematics"
+    allowed = (*KINEMATICS_OPTIONS, "threat") if overlay else KINEMATICS_OPTIONS
     for key in table:
-        if key not in KINEMATICS_OPTIONS:
+        if key not in allowed:
             raise PydanticCustomError("unknown_option", "not a Kinematics option (allowed: {allowed})",
-                                      {"key": key, "got": table[key], "allowed": ", ".join(KINEMATICS_OPTIONS)})
+                                      {"key": key, "got": table[key], "allowed": ", ".join(allowed)})
+    if overlay and not isinstance(table.get("threat", False), bool):  # the threat-cue columns (OverlayKinematics)
+        raise PydanticCustomError("bad_option", "must be true or false", {"key": "threat", "got": table["threat"]})
     count = table.get("vehicles_count", 5)
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise PydanticCustomError("bad_option", "must be a whole number >= 1", {"key": "vehicles_count", "got": count})
@@ -554,12 +559,28 @@ class TaggerConfig(_Section):
     prior_aggressive: float = Field(0.2, gt=0, lt=1, description="twin's prior share of aggressive drivers [-]")
     threshold: float = Field(0.6, gt=0, lt=1, description="posterior above which the tag is 'aggressive' [-]")
     max_evidence: int = Field(20, ge=1, description="sudden lane changes kept as evidence per driver [-]")
+    model: Literal["sudden", "evidence"] = Field(
+        "sudden",
+        description="'sudden': the Poisson count of sudden lane changes (two-class world); 'evidence': a logistic "
+        "model of the driver's behaviour (lane changes, speed, time headway), fitted on simulated training seeds",
+    )
+    evidence_weights: str | None = Field(
+        None, description="JSON weights of the 'evidence' model (None: the shipped tagger_evidence.json)"
+    )
 
     @model_validator(mode="after")
     def _rates(self) -> TaggerConfig:
         if self.rate_aggressive_per_min <= self.rate_normal_per_min:
             raise ValueError("rate_aggressive_per_min must be larger than rate_normal_per_min")
         return self
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        out: dict[str, Any] = handler(self)
+        if self.model == "sudden" and self.evidence_weights is None:  # dumps as before the evidence model
+            out.pop("model", None)
+            out.pop("evidence_weights", None)
+        return out
 
 
 INTENTION_MODELS = ("learned", "physics")
@@ -618,6 +639,10 @@ class TwinConfig(_Section):
     in_observation: bool = Field(
         False, description="add each observed vehicle's delivered twin tag to the Kinematics observation"
     )
+    in_observation_intent: bool = Field(
+        False, description="with in_observation: also the delivered lane-change intention at the operating horizon "
+        "(columns twin_p_change, twin_target_dlane)"
+    )
     uplink: UplinkConfig = Field(default_factory=UplinkConfig)
     downlink: DownlinkConfig = Field(default_factory=DownlinkConfig)
     store: StoreConfig = Field(default_factory=StoreConfig)
@@ -629,6 +654,8 @@ class TwinConfig(_Section):
         out: dict[str, Any] = handler(self)
         if self.intention == _DEFAULT_INTENTION:
             out.pop("intention", None)
+        if not self.in_observation_intent:  # dumps as before the key existed
+            out.pop("in_observation_intent", None)
         return out
 
 

@@ -9,7 +9,10 @@ overlay's metrics; paired tests between conditions) and a self-contained ``repor
 Every trial is checked as it is read (:func:`~dt_highway.metrics.trial_log.check_trial`:
 completed, every row its duration makes, the columns there and numbers, a readable
 ``meta.json``); a trial that fails is *excluded*: one warning line names it and the reason,
-and the report and ``summary.json`` (``excluded``) list it. Only input that leaves no study to
+and the report and ``summary.json`` (``excluded``) list it. An attempt stopped before its end
+(status ``aborted``: Esc, the window closed, a signal, an error, a process that died) is kept
+apart: ``aborted_trials`` lists it with its reason and the attempt driven instead (a keyboard
+session keeps every attempt: ``P01-adas``, ``P01-adas-retry1``...). Only input that leaves no study to
 report (no study directory, no trials, none usable) is an error. Both files open with the
 study's provenance (:func:`provenance`: scenario, trial length, seeds, drivers, package
 version and git commit, dates, hosts). Metrics are labelled with their units from one table
@@ -22,6 +25,11 @@ Comparisons (:func:`comparisons`), for any number of conditions: every condition
 participant, for keyboard trials; the pair number when a trial has no seed). A trial cut short
 by a collision stays in its pair (its metrics cover the time it ran); the report lists such
 trials and counts, per comparison, the pairs that hold one.
+
+Questionnaires (only when some trial directory holds a ``questionnaires.json``): each score is a
+column ``q_<name>`` of ``metrics.csv`` (:func:`questionnaire_scores`); ``summary.json``'s
+``questionnaires`` and the html's section hold, per condition, n, mean, SD and 95 % CI of each
+score and the same paired tests between conditions (:func:`questionnaire_summary`).
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ from scipy import stats
 from dt_highway._version import __version__
 from dt_highway.conditions import CONDITIONS
 from dt_highway.config import ConfigError
+from dt_highway.hmi.questionnaire import read_results
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S
 from dt_highway.metrics.safety import (
@@ -59,7 +68,15 @@ from dt_highway.metrics.safety import (
     TTC_STAR_S,
     collision_label,
 )
-from dt_highway.metrics.trial_log import META, Trial, TrialLogError, check_trial, git_commit, load_trial
+from dt_highway.metrics.trial_log import (
+    FINISHED_STATUSES,
+    META,
+    Trial,
+    TrialLogError,
+    check_trial,
+    git_commit,
+    load_trial,
+)
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -300,12 +317,13 @@ def collect(study_dir: str | Path, warn: Warn | None = None) -> tuple[pd.DataFra
     data the plots and the provenance need.
 
     Each trial is read and checked (:func:`read_checked`); one that fails is excluded, with one
-    warning line naming it and the reason. Practice trials are left out without a word.
+    warning line naming it and the reason; an attempt stopped before its end (status ``aborted``)
+    is listed apart, with one warning line too. Practice trials are left out without a word.
 
     :param study_dir: the study directory
     :param warn: takes each warning line (default: printed to stderr)
-    :return: the rows, and ``traces``, ``ttc``, ``cut_ins`` (plots), ``excluded`` (trial, reason)
-        and ``metas`` (the usable trials' metadata)
+    :return: the rows, and ``traces``, ``ttc``, ``cut_ins`` (plots), ``excluded`` (trial, reason),
+        ``aborted`` (the aborted attempts' names) and ``metas`` (the usable trials' metadata)
     :raises ConfigError: one line naming the file, when the study directory or its ``trials/``
         cannot be read, holds no trials, or none usable
     """
@@ -313,12 +331,19 @@ def collect(study_dir: str | Path, warn: Warn | None = None) -> tuple[pd.DataFra
     warn = warn or _stderr_warning
     dirs = _trial_dirs(root)
     rows: list[dict[str, Any]] = []
-    extra: dict[str, Any] = {"traces": [], "ttc": {}, "cut_ins": [], "excluded": [], "metas": []}
+    extra: dict[str, Any] = {"traces": [], "ttc": {}, "cut_ins": [], "excluded": [], "metas": [], "aborted": []}
     for d in dirs:
         trial, reason = read_checked(d)
         if trial is not None and trial.meta.get("practice"):
             continue  # practice trials are not data
         row = _row(d, trial)
+        if trial is not None and trial.meta.get("status") == "aborted":  # an attempt stopped early: kept, listed
+            row["excluded"] = reason
+            rows.append(row)
+            extra["aborted"].append(d.name)
+            warn(f"trial {d.name}: aborted attempt ({trial.meta.get('end_reason') or 'no reason logged'}), "
+                 "not in the statistics")
+            continue
         if trial is not None and reason is None:
             try:
                 row.update(trial.metrics())
@@ -335,7 +360,9 @@ def collect(study_dir: str | Path, warn: Warn | None = None) -> tuple[pd.DataFra
     for e in extra["excluded"]:
         warn(f"trial {e['trial']} excluded: {e['reason']}")
     if not extra["metas"]:
-        why = f"all {len(extra['excluded'])} excluded (see the warnings)" if extra["excluded"] else "only practice trials"
+        n_out = len(extra["excluded"]) + len(extra["aborted"])
+        what = "excluded or aborted" if extra["aborted"] else "excluded"
+        why = f"all {n_out} {what} (see the warnings)" if n_out else "only practice trials"
         raise ConfigError(f"no usable trial under {root / 'trials'}: {why}")
     return pd.DataFrame(rows), extra
 
@@ -434,7 +461,7 @@ def describe(x: np.ndarray, lo: float = -math.inf, hi: float = math.inf) -> dict
 def _completed(metrics: pd.DataFrame) -> pd.DataFrame:
     """The completed trials not excluded, with their pair ``key``: participant and seed (the pair number
     without a seed)."""
-    ok = metrics["status"] == "completed"
+    ok = metrics["status"].isin(FINISHED_STATUSES)
     if "excluded" in metrics:
         ok &= metrics["excluded"].fillna("").astype(str) == ""
     done = metrics[ok].copy()
@@ -456,7 +483,8 @@ def _plain(x: Any) -> Any:
     return None if isinstance(x, float) and math.isnan(x) else x
 
 
-def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas") -> dict[str, Any]:
+def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
+                 names: Sequence[str] = SUMMARY_METRICS) -> dict[str, Any]:
     """Wilcoxon signed-rank and paired t-test of ``b - a`` per metric, with Cohen's ``d_z``.
 
     Pairs: same seed (and participant, for keyboard trials).
@@ -464,11 +492,12 @@ def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas") ->
     :param metrics: one row per trial (:func:`collect`)
     :param a: the reference condition
     :param b: the condition tested against it
+    :param names: the columns tested (a column without pairs is left out)
     :return: per metric: ``n_pairs``, ``mean_diff``, ``wilcoxon_p``, ``ttest_p``, ``effect_size_dz``
     """
     done = _completed(metrics)
     out: dict[str, Any] = {}
-    for m in SUMMARY_METRICS:
+    for m in names:
         if m not in done:
             continue
         wide = done.pivot_table(index="key", columns="condition", values=m, aggfunc="first")
@@ -535,6 +564,26 @@ def _condition_entry(g: pd.DataFrame, cuts: list[dict[str, Any]]) -> dict[str, A
     return entry
 
 
+def aborted_trials(metrics: pd.DataFrame) -> list[dict[str, Any]]:
+    """The attempts stopped before their end (status ``aborted``: Esc, the window closed, a signal,
+    an error, a process that died), each with its reason and the attempt that was driven instead.
+
+    :param metrics: one row per trial (:func:`collect`)
+    :return: per aborted attempt: ``trial``, ``participant``, ``condition``, ``end_reason`` and
+        ``retried_in`` (the completed trial of the same participant, condition and seed, or ``None``)
+    """
+    if "status" not in metrics:
+        return []
+    done = metrics[metrics["status"].isin(FINISHED_STATUSES)]
+    out = []
+    for _, r in metrics[metrics["status"] == "aborted"].iterrows():
+        same = done[(done["participant"].astype(str) == str(r["participant"]))
+                    & (done["condition"].astype(str) == str(r["condition"])) & (done["seed"] == r["seed"])]
+        out.append({"trial": r["trial"], "participant": _plain(r["participant"]), "condition": _plain(r["condition"]),
+                    "end_reason": _plain(r["end_reason"]), "retried_in": same["trial"].iloc[0] if len(same) else None})
+    return out
+
+
 def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
     """``summary.json``'s contents (but the provenance): per condition, the comparisons
     (``paired_tests``: the ``adas - baseline`` one's tests, when the study has both), the trials
@@ -550,8 +599,7 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
     short = done[_cut_short(done)]
     return {"conditions": conditions, "comparisons": comps, "paired_tests": legacy,
             "excluded": list(extra.get("excluded", [])),
-            "aborted_trials": metrics.loc[metrics["status"].notna() & (metrics["status"] != "completed"),
-                                          "trial"].tolist(),
+            "aborted_trials": aborted_trials(metrics),
             "cut_short_trials": [
                 {"trial": r["trial"], "condition": r["condition"], "pair": _plain(r["pair"]),
                  "duration_s": _plain(r.get("duration_s")), "planned_duration_s": _plain(r.get("planned_duration_s")),
@@ -648,6 +696,8 @@ table.prov td{text-align:left;border:none;padding:.1em .8em .1em 0}table.prov td
 {% if small %}<p class="warn"><b>Small sample:</b> {% for comp in small %}{{ comp.b }} &minus; {{ comp.a }} has {{ comp.n_pairs }} pair{{ "" if comp.n_pairs == 1 else "s" }}{% if not loop.last %}, {% endif %}{% endfor %}; below {{ min_pairs }} pairs the p-values and confidence intervals say little.</p>{% endif %}
 {% if summary.excluded %}<div class="excluded"><b>{{ summary.excluded|length }} trial{{ "" if summary.excluded|length == 1 else "s" }} excluded</b> (not in any table, test or plot):
 <ul>{% for e in summary.excluded %}<li>{{ e.trial }}: {{ e.reason }}</li>{% endfor %}</ul></div>{% endif %}
+{% if summary.aborted_trials %}<div class="small"><b>{{ summary.aborted_trials|length }} aborted attempt{{ "" if summary.aborted_trials|length == 1 else "s" }}</b> (kept in trials/, not in any table, test or plot):
+<ul>{% for a in summary.aborted_trials %}<li>{{ a.trial }}: {{ a.end_reason }}{% if a.retried_in %}; driven again in {{ a.retried_in }}{% endif %}</li>{% endfor %}</ul></div>{% endif %}
 {% if summary.cut_short_trials %}<p class="flag">{{ summary.cut_short_trials|length }} of the {{ n_used }} trials cut short by a collision (listed below the table).</p>{% endif %}
 <h2>Per condition</h2>
 <table><tr><th>metric [unit]</th>{% for c in conds %}<th>{{ c }}: mean &plusmn; SD [95% CI] (n)</th>{% endfor %}<th>paper (baseline &rarr; ADAS)</th></tr>
@@ -670,6 +720,16 @@ table.prov td{text-align:left;border:none;padding:.1em .8em .1em 0}table.prov td
 <table><tr><th>metric [unit]</th><th>pairs</th><th>mean difference ({{ comp.b }} &minus; {{ comp.a }})</th><th>Wilcoxon p</th><th>paired t p</th><th title="{{ notes['d_z'] }}">d<sub>z</sub></th></tr>
 {% for m, t in comp.tests.items() %}<tr><td title="{{ m }}: {{ definitions[m] }}">{{ label(m) }}</td><td>{{ t.n_pairs }}</td><td>{{ fmt(t.mean_diff) }}</td><td>{{ pfmt(t.wilcoxon_p) }}</td><td>{{ pfmt(t.ttest_p) }}</td><td>{{ fmt(t.effect_size_dz) }}</td></tr>{% endfor %}
 </table>{% else %}<p>No two conditions to compare.</p>{% endfor %}
+{% if questionnaires %}<h2>Questionnaires</h2>
+<p class="small">Answered by the participant after each trial (questionnaires.json in the trial's directory); practice and excluded trials left out. Pairs and tests as above; * a bound clipped to the score's range.</p>
+<table><tr><th>questionnaire: score</th>{% for c in questionnaires.condition_order %}<th>{{ c }}: mean &plusmn; SD [95% CI] (n)</th>{% endfor %}</tr>
+{% for q, info in questionnaires.questionnaires.items() %}<tr><td title="{{ q }}: {{ info.citation }}">{{ info.title }}: {{ info.label }}</td>
+{% for c in questionnaires.condition_order %}{% set d = questionnaires.conditions[c][q] %}<td>{% if d.n %}{{ fmt(d.mean) }} &plusmn; {{ fmt(d.sd) }} [{{ fmt(d.ci95[0]) }}, {{ fmt(d.ci95[1]) }}]{% if d.ci95_clipped %}*{% endif %} ({{ d.n }}){% else %}not asked{% endif %}</td>{% endfor %}</tr>{% endfor %}
+</table>
+{% for comp in questionnaires.comparisons %}<h3>Questionnaires: {{ comp.b }} &minus; {{ comp.a }}</h3>
+<table><tr><th>score</th><th>pairs</th><th>mean difference ({{ comp.b }} &minus; {{ comp.a }})</th><th>Wilcoxon p</th><th>paired t p</th><th title="{{ notes['d_z'] }}">d<sub>z</sub></th></tr>
+{% for q, t in comp.tests.items() %}<tr><td>{{ questionnaires.questionnaires[q].label }}</td><td>{{ t.n_pairs }}</td><td>{{ fmt(t.mean_diff) }}</td><td>{{ pfmt(t.wilcoxon_p) }}</td><td>{{ pfmt(t.ttest_p) }}</td><td>{{ fmt(t.effect_size_dz) }}</td></tr>{% endfor %}
+</table>{% endfor %}{% endif %}
 <h2>Plots</h2>
 <h3>TTC distribution</h3><img alt="TTC distribution per condition, with the TTC* threshold" src="data:image/png;base64,{{ plots.ttc }}">
 <h3>Speed variance, paired by trial</h3><img alt="paired speed variance" src="data:image/png;base64,{{ plots.variance }}">
@@ -689,6 +749,69 @@ table.prov td{text-align:left;border:none;padding:.1em .8em .1em 0}table.prov td
 <p class="small">The paper does not state its units or how it aggregates TTC; the values above follow the definitions listed here.</p>
 </body></html>
 """  # noqa: E501 - the HTML template's lines are as long as its rows
+
+
+QUESTIONNAIRE_PREFIX = "q_"
+"""A questionnaire's score is the column ``q_<name>`` of ``metrics.csv``"""
+
+
+def questionnaire_scores(study_dir: str | Path, metrics: pd.DataFrame) -> tuple[pd.DataFrame, dict[str, dict[str, Any]]]:
+    """The trials' questionnaire scores (``questionnaires.json`` in a trial's directory, written
+    by :func:`~dt_highway.hmi.questionnaire.run_questionnaires`) as columns ``q_<name>`` of the
+    metrics (empty where a trial has none or did not finish that questionnaire).
+
+    :param study_dir: the study directory
+    :param metrics: one row per trial (:func:`collect`)
+    :return: the metrics with those columns, and per column the questionnaire's ``name``,
+        ``title``, ``citation``, ``label`` and score ``range`` (empty when no trial has answers)
+    """
+    scores: dict[str, list[float]] = {}
+    info: dict[str, dict[str, Any]] = {}
+    trials = metrics["trial"].astype(str).tolist() if "trial" in metrics else []
+    for row, trial in enumerate(trials):
+        data = read_results(Path(study_dir) / "trials" / trial)
+        quest = data.get("questionnaires") if data else None
+        for name, entry in (quest.items() if isinstance(quest, dict) else []):
+            result = entry.get("score") if isinstance(entry, dict) else None
+            if not isinstance(result, dict) or not isinstance(result.get("score"), (int, float)):
+                continue  # not finished
+            col = QUESTIONNAIRE_PREFIX + str(name)
+            scores.setdefault(col, [math.nan] * len(trials))[row] = float(result["score"])
+            info.setdefault(col, {"name": str(name), "title": str(entry.get("title", name)),
+                                  "citation": str(entry.get("citation", "")), "label": str(result.get("label", name)),
+                                  "range": [float(v) for v in result.get("range", [-math.inf, math.inf])]})
+    out = metrics.copy()
+    for col in sorted(scores):
+        out[col] = scores[col]
+    return out, {c: info[c] for c in sorted(info)}
+
+
+def questionnaire_summary(metrics: pd.DataFrame, questionnaires: dict[str, dict[str, Any]]) -> dict[str, Any] | None:
+    """Per condition, n, mean, SD and 95 % CI of each questionnaire score (:func:`describe`), and
+    the paired tests between conditions (:func:`comparisons`, :func:`paired_tests`).
+
+    :param metrics: one row per trial, with the score columns (:func:`questionnaire_scores`)
+    :param questionnaires: the score columns' descriptions (:func:`questionnaire_scores`)
+    :return: ``questionnaires`` (column -> description), ``condition_order``, ``conditions``
+        (condition -> column -> :func:`describe`) and ``comparisons`` (``a``, ``b``, ``tests`` per
+        column with pairs); ``None`` when no usable trial has a score
+    """
+    done = _completed(metrics)
+    cols = [c for c in questionnaires if c in done and done[c].notna().any()]
+    if not cols:
+        return None
+    conds = condition_order(done.loc[done[cols].notna().any(axis=1), "condition"].dropna().unique())
+    conditions = {}
+    for cond in conds:
+        g = done[done["condition"].astype(str) == cond]
+        conditions[cond] = {c: describe(g[c].to_numpy(float), *questionnaires[c]["range"]) for c in cols}
+    comps = []
+    for a, b in comparisons(conds):
+        tests = paired_tests(metrics, a, b, names=cols)
+        if tests:
+            comps.append({"a": a, "b": b, "tests": tests})
+    return {"questionnaires": {c: questionnaires[c] for c in cols}, "condition_order": conds,
+            "conditions": conditions, "comparisons": comps}
 
 
 def _pfmt(p: float | None) -> str:
@@ -747,7 +870,11 @@ def write_report(study_dir: str | Path, warn: Warn | None = None) -> dict[str, P
     """
     root = Path(study_dir)
     metrics, extra = collect(root, warn)
+    metrics, questionnaires = questionnaire_scores(root, metrics)
     summary = {"provenance": provenance(root, extra["metas"]), **summarise(metrics, extra)}
+    quest = questionnaire_summary(metrics, questionnaires) if questionnaires else None
+    if quest is not None:
+        summary["questionnaires"] = quest
     files = {"metrics": root / "metrics.csv", "summary": root / "summary.json", "html": root / "report.html"}
     metrics.to_csv(files["metrics"], index=False)
     files["summary"].write_text(dump_json(summary) + "\n")
@@ -761,7 +888,7 @@ def write_report(study_dir: str | Path, warn: Warn | None = None) -> dict[str, P
         overlay_metrics=[m for m in OVERLAY_METRICS if conds and all(m in summary["conditions"][c] for c in conds)],
         kinds=kinds, paper=summary["paper"], definitions=DEFINITIONS, notes=NOTES, info=METRIC_INFO,
         small=[c for c in summary["comparisons"] if c["small_sample"]], min_pairs=MIN_PAIRS,
-        plots=_plots(metrics, extra, conds), fmt=_fmt, pfmt=_pfmt, label=metric_label,
+        plots=_plots(metrics, extra, conds), fmt=_fmt, pfmt=_pfmt, label=metric_label, questionnaires=quest,
         window=f"{CUT_IN_WINDOW_S:g}", conflict=f"{CONFLICT_TTC_S:g}",
         pct=lambda k, n: f" ({100 * k / n:.0f} %)" if n else "")
     files["html"].write_text(html, encoding="utf-8")

@@ -13,19 +13,23 @@ Trials run in a process pool (``workers``), each writing its own crash-safe log 
 skipped when the study is run again (resume), and a trial that fails is reported and marked
 aborted without stopping the others. Ctrl-C (SIGINT to the process group, as a terminal sends it)
 starts no further trial, interrupts the running ones (their logs are closed as aborted,
-"interrupted by the user") and raises :class:`KeyboardInterrupt` once they have stopped.
+"interrupted by the user") and raises :class:`KeyboardInterrupt` once they have stopped. With the
+Ray backend, SIGTERM does the same, and so does SIGINT when the study was started with it ignored
+(a background job).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import threading
+import time
 import traceback
-from collections.abc import Callable, Generator, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from contextlib import closing, contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
@@ -281,9 +285,7 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
             progress(r)
 
     if backend == "ray":
-        with closing(_run_ray(specs, ray_address, workers)) as results:  # closed on Ctrl-C: its tasks are cancelled
-            for r in results:
-                record(r)
+        _run_ray(specs, ray_address, workers, record)
         return result
     if backend != "process":
         raise ConfigError(f"unknown backend {backend!r} (allowed: process, ray)")
@@ -347,11 +349,14 @@ def _run_pool(specs: Sequence[TrialSpec], workers: int, record: Callable[[dict[s
     """Run the trials in a process pool, passing each result to ``record`` as it finishes.
 
     On Ctrl-C no queued trial starts; the running ones (whose processes got the SIGINT too)
-    stop, and :class:`KeyboardInterrupt` is raised once they have.
+    stop, and :class:`KeyboardInterrupt` is raised once they have. A SIGTERM to the study's
+    process (``kill PID``, a job scheduler) does the same: it is passed on to the workers as a
+    SIGINT (they would not get it: before, they ran on as orphans) and then taken as a Ctrl-C.
     """
     ctx = get_context("spawn")
     stop = ctx.Event()
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(stop,)) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(stop,)) as pool, \
+            _sigterm_as_ctrl_c(pool):
         try:
             with _sigint_ignored():  # the workers start at submit
                 futures: dict[Future, TrialSpec] = {pool.submit(_pool_trial, s): s for s in specs}
@@ -371,6 +376,28 @@ def _run_pool(specs: Sequence[TrialSpec], workers: int, record: Callable[[dict[s
             raise
 
 
+@contextmanager
+def _sigterm_as_ctrl_c(pool: ProcessPoolExecutor) -> Iterator[None]:
+    """While the pool runs (main thread only): SIGTERM sends SIGINT to the pool's workers, then raises
+    :class:`KeyboardInterrupt` here; the previous handler comes back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_term(signum: int, frame: Any) -> None:
+        stop_workers = list(getattr(pool, "_processes", None) or {})  # the executor's worker pids (no public API)
+        for pid in stop_workers:
+            with suppress(OSError):
+                os.kill(pid, signal.SIGINT)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     """Fail fast with one line when a Ray address (``host:port`` or ``ray://host:port``)
     does not answer (Ray itself retries for minutes)."""
@@ -383,12 +410,124 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
         raise ConfigError(f"cannot reach Ray at {address}: {err}") from None
 
 
-def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> Generator[dict[str, Any], None, None]:
-    """Run the trials as Ray tasks (one CPU each), yielding each result as it finishes.
+class _StopRequests:
+    """A signal handler that only counts Ctrl-C (SIGINT) and SIGTERM, and remembers the first.
+
+    It is installed whatever the signals' handlers were: a study started as a background job
+    (``cmd &`` in a script) inherits SIGINT ignored, so that Python never raised
+    :class:`KeyboardInterrupt` and the study ran on; and after ``ray.init`` SIGTERM went to Ray's
+    handlers (the process aborted with a C++ stack dump, its running trial's log left open). It never
+    raises: a :class:`KeyboardInterrupt` inside Ray's client code can leave Ray half-way through a
+    call; the study's own loop reads the count instead.
+    """
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.first: int | None = None
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.count += 1
+        self.first = signum if self.first is None else self.first
+
+
+@contextmanager
+def _signals_counted(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[_StopRequests]:
+    """Count the signals ``signums`` instead of acting on them, until the block is left (then the
+    previous handlers are back). Off the main thread, where Python cannot catch signals, nothing is counted."""
+    stop = _StopRequests()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    old = {s: signal.signal(s, stop) for s in signums}
+    try:
+        yield stop
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+
+
+def _open_log(directory: str | Path) -> tuple[dict[str, Any], int | None] | None:
+    """A trial log that says ``running``: its metadata, and its writer's process id when that ran on this host.
+
+    :return: ``None`` when the trial has no such log (not started, finished, or unreadable)
+    """
+    try:
+        meta = json.loads((Path(directory) / "meta.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or meta.get("status") != "running":
+        return None
+    pid = meta.get("pid")
+    return meta, (pid if isinstance(pid, int) and meta.get("host") == socket.gethostname() else None)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this host (a zombie counts as gone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def _being_written(directory: str | Path) -> bool:
+    """Whether a trial's log is open in a live process on this host."""
+    log = _open_log(directory)
+    return log is not None and log[1] is not None and _alive(log[1])
+
+
+def _mark_abandoned(directory: str | Path, wait_s: float = 2.0) -> bool:
+    """Mark a trial log left ``running`` by a process that was killed (a Ray task that did not stop
+    when cancelled) as aborted, "interrupted by the user", once that process (on this host) is gone.
+
+    :param wait_s: how long to wait for the process to end [s]
+    :return: whether the log was marked
+    """
+    deadline = time.monotonic() + wait_s
+    while _being_written(directory):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    log = _open_log(directory)
+    if log is None or log[1] is None:  # finished, or written on another host: left to that host
+        return False
+    meta = {**log[0], "status": "aborted", "end_reason": "interrupted by the user",
+            "end_time": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    path = Path(directory) / "meta.json"
+    tmp = path.with_name("meta.json.tmp")
+    tmp.write_text(dump_json(meta) + "\n")
+    os.replace(tmp, path)
+    return True
+
+
+def _ray_trial(spec: TrialSpec) -> dict[str, Any]:
+    """:func:`run_trial` as a Ray task. Ray cancels a running task by a simulated SIGINT in its worker,
+    which Python drops when SIGINT is ignored there (inherited from a study started as a background
+    job): the task then ran on. Its worker's Python takes SIGINT for the task (the OS signal stays
+    blocked in Ray's workers)."""
+    main = threading.current_thread() is threading.main_thread()
+    if main and signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.SIG_DFL):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    return run_trial(spec)
+
+
+def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int,
+             record: Callable[[dict[str, Any]], None]) -> None:
+    """Run the trials as Ray tasks (one CPU each), passing each result to ``record`` as it finishes.
 
     Without ``address`` a local Ray is started with ``workers`` CPUs and shut down after;
     with one, the tasks go to that cluster (whose workers must have ``dt-highway``
     installed and see the study directory, e.g. on a shared file system).
+
+    Ctrl-C or SIGTERM: no queued trial starts, the running ones are cancelled (their logs are
+    closed as aborted, "interrupted by the user"), and :class:`KeyboardInterrupt` is raised once
+    they have stopped. Ray starts its workers with SIGINT blocked, so a terminal's Ctrl-C reaches
+    only this process: the signal is counted (:class:`_StopRequests`) and acted on here.
     """
     try:
         import ray  # lazy: optional extra (pip install dt-highway[ray])
@@ -397,31 +536,73 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int) -> G
     if address is not None and address != "auto":
         _check_reachable(address)
     started = not ray.is_initialized()
-    if started:
-        try:
-            if address is None:
-                ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
-            else:
-                ray.init(address=address, log_to_driver=False)
-        except (ConnectionError, RuntimeError, ValueError) as err:
-            raise ConfigError(f"cannot start or reach Ray at {address or 'a local instance'}: {err}") from None
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(run_trial)
-        pending = {task.remote(s): s for s in specs}
-        try:
-            while pending:
-                done, _ = ray.wait(list(pending), num_returns=1)
-                for ref in done:
-                    spec = pending.pop(ref)
-                    try:
-                        yield ray.get(ref)
-                    except Exception as err:  # noqa: BLE001 - a task whose worker died
-                        yield {"status": "failed", "directory": spec.directory, "error": f"{type(err).__name__}: {err}"}
-        finally:
-            if pending:  # Ctrl-C: the queued tasks do not start, the running ones get KeyboardInterrupt
-                for ref in pending:
-                    ray.cancel(ref)
-                ray.wait(list(pending), num_returns=len(pending), timeout=10.0)  # their logs are closed
-    finally:
         if started:
+            try:
+                if address is None:
+                    ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+                else:
+                    ray.init(address=address, log_to_driver=False)
+            except (ConnectionError, RuntimeError, ValueError) as err:
+                raise ConfigError(f"cannot start or reach Ray at {address or 'a local instance'}: {err}") from None
+        with _signals_counted() as stop:  # installed after ray.init, which sets its own SIGTERM handler
+            try:
+                cancelled = _ray_tasks(ray, specs, record, stop)
+            finally:
+                if started:
+                    ray.shutdown()  # still under the counting handlers: a second Ctrl-C cannot break it
+    finally:
+        if started:  # after a Ctrl-C during ray.init (a no-op when shut down already)
             ray.shutdown()
+    if stop.count:
+        for directory in cancelled:  # a trial killed at the end of the grace period left its log open
+            _mark_abandoned(directory)
+        raise KeyboardInterrupt
+
+
+def _ray_tasks(ray: Any, specs: Sequence[TrialSpec], record: Callable[[dict[str, Any]], None], stop: _StopRequests,
+               poll_s: float = 0.2, grace_s: float = 5.0, missed_s: float = 2.0) -> list[str]:
+    """Submit the trials to Ray and pass their results to ``record`` until all are done or ``stop`` counts a signal;
+    then cancel the rest, give the running ones ``grace_s`` to close their logs, and kill those that missed the cancel.
+
+    :param ray: the ``ray`` module (initialised)
+    :param poll_s: how often ``stop`` is read [s]
+    :param grace_s: how long cancelled trials may take to stop [s]; a second signal ends it
+    :param missed_s: a task whose reference is not ready this long after its cancel missed it [s]
+    :return: the directories of the trials that were cancelled (empty unless stopped)
+    """
+    task = ray.remote(num_cpus=1, max_retries=0)(_ray_trial)
+    pending = {task.remote(s): s for s in specs}
+    while pending and not stop.count:
+        done, _ = ray.wait(list(pending), num_returns=1, timeout=poll_s)
+        for ref in done:
+            spec = pending.pop(ref)
+            try:
+                r = ray.get(ref)
+            except Exception as err:  # noqa: BLE001 - a task whose worker died
+                r = {"status": "failed", "directory": spec.directory, "error": f"{type(err).__name__}: {err}"}
+            record(r)
+    if not stop.count:
+        return []
+    for ref in pending:  # the queued tasks do not start, the running ones get KeyboardInterrupt
+        ray.cancel(ref)
+    left = list(pending)
+    t0 = time.monotonic()
+    # a cancelled task's reference is ready at once and its log is closed a moment later; a task handed to a
+    # worker at the moment of the cancel can miss it (and later ones): its reference stays pending, it runs on
+    while stop.count < 2 and time.monotonic() < t0 + grace_s:
+        _, left = ray.wait(left, num_returns=len(left), timeout=0) if left else ([], [])
+        if left and time.monotonic() >= t0 + missed_s:
+            _kill(ray, left)
+            left = []
+        if not left and not any(_being_written(s.directory) for s in pending.values()):
+            break
+        time.sleep(poll_s)
+    _kill(ray, left)
+    return [spec.directory for spec in pending.values()]
+
+
+def _kill(ray: Any, refs: Sequence[Any]) -> None:
+    """Kill the workers of Ray tasks that missed their cancel (their trial logs are marked aborted after)."""
+    for ref in refs:
+        ray.cancel(ref, force=True)

@@ -72,8 +72,8 @@ def test_a_session_orders_its_conditions_by_participant_and_can_include_the_sham
     assert len(set(orders)) == 6  # six participants: all six orders of three conditions
     assert orders[0] == ("baseline", "adas-threat", "sham") and orders[6 % 6] == condition_order("P07", three)
     trials = session_plan(DriveOptions("P02", "baseline", Path("o"), seed=5), 30.0, three)
-    assert [(t.condition, t.practice, t.seed) for t in trials] == [
-        (orders[1][0], True, 1005), *((c, False, 5) for c in orders[1])]
+    assert [(t.condition, t.practice, t.opts.seed) for t in trials] == [  # a practice trial per condition, in order
+        *((c, True, 1005 + i) for i, c in enumerate(orders[1])), *((c, False, 5) for c in orders[1])]
     with pytest.raises(ConfigError, match="at least two"):
         condition_order("P01", ["sham"])
     with pytest.raises(ConfigError, match="twice"):
@@ -117,7 +117,7 @@ def test_a_keyboard_session_can_include_the_sham(tmp_path, capsys):
                  "--set", "highway.vehicles_count=12", "--set", "twin.preroll_s=5",
                  "--set", "camera.width_px=320", "--set", "camera.height_px=180"]) == 0
     said = capsys.readouterr().out
-    assert "practice, then sham, baseline" in said and "3 of 3 trials done" in said  # P02: the second row
+    assert "practice sham, baseline, then sham, baseline" in said and "4 of 4 trials done" in said  # P02: the second row
     sham = load_trial(out / "trials" / "P02-sham")
     assert sham.meta["condition"] == "sham" and sham.meta["config"]["overlay"]["sham"] is True
-    assert load_trial(out / "trials" / "P02-practice").meta["condition"] == "sham"
+    assert load_trial(out / "trials" / "P02-practice-sham").meta["condition"] == "sham"

@@ -16,7 +16,7 @@ from dt_highway.metrics.trial_log import load_trial
 from dt_highway.overlay import MARK_RGB
 
 FAST = ["--set", "highway.vehicles_count=16", "--set", "twin.preroll_s=20", "--set", "camera.width_px=480",
-        "--set", "camera.height_px=270", "--no-minimap"]
+        "--set", "camera.height_px=270", "--set", "highway.simulation_frequency=15", "--no-minimap"]  # trials default to 30 Hz
 SCRIPT = "0.2 down UP\n1.0 up UP\n1.2 down LEFT\n1.3 up LEFT\n1.6 down DOWN\n2.0 up DOWN\n"
 
 
@@ -115,9 +115,10 @@ def test_condition_order_is_counterbalanced_by_participant():
     from dt_highway.hmi.session import session_plan
 
     plan = session_plan(DriveOptions("P02", "baseline", Path("o"), screenshots=Path("shots"), seed=5), 30.0)
-    assert [(t.condition, t.practice, t.seed, t.duration_s) for t in plan] == [
-        ("adas", True, 1005, 30.0), ("adas", False, 5, None), ("baseline", False, 5, None)]
-    assert [t.screenshots.name for t in plan] == ["P02-practice", "P02-adas", "P02-baseline"]  # no overwriting
+    assert [(t.condition, t.practice, t.opts.seed, t.opts.duration_s) for t in plan] == [
+        ("adas", True, 1005, 30.0), ("baseline", True, 1006, 30.0), ("adas", False, 5, None), ("baseline", False, 5, None)]
+    assert [t.opts.screenshots.name for t in plan] == [  # no overwriting
+        "P02-practice-adas", "P02-practice-baseline", "P02-adas", "P02-baseline"]
 
 
 def test_a_session_runs_practice_and_both_conditions_resumes_and_reports_by_participant(tmp_path, capsys):
@@ -128,19 +129,21 @@ def test_a_session_runs_practice_and_both_conditions_resumes_and_reports_by_part
     for p in ("P01", "P02"):
         assert main(["session", "--participant", p, *args]) == 0
     trials = sorted(d.name for d in (out / "trials").iterdir())
-    assert trials == ["P01-adas", "P01-baseline", "P01-practice", "P02-adas", "P02-baseline", "P02-practice"]
-    practice = load_trial(out / "trials" / "P02-practice")
+    assert trials == ["P01-adas", "P01-baseline", "P01-practice-adas", "P01-practice-baseline",
+                      "P02-adas", "P02-baseline", "P02-practice-adas", "P02-practice-baseline"]
+    practice = load_trial(out / "trials" / "P02-practice-adas")
     assert practice.meta["practice"] and practice.meta["condition"] == "adas"  # P02 starts with ADAS
     assert practice.meta["seed"] == 1000 and load_trial(out / "trials" / "P02-adas").meta["seed"] == 0
-    # a trial that was killed reads as aborted: the session runs it again, and only it
+    # a trial that was killed reads as aborted: the session runs it again, and only it, in P01-adas-retry1
     meta = out / "trials" / "P01-adas" / "meta.json"
     m = json.loads(meta.read_text())
     meta.write_text(json.dumps({**m, "status": "running", "pid": 2 ** 22 + 12345}))
     capsys.readouterr()
     assert main(["session", "--participant", "P01", *args]) == 0
     said = capsys.readouterr().out
-    assert "P01-practice: already completed, skipped" in said and "P01-baseline: already completed" in said
-    assert "P01-adas: completed" in said
+    assert "P01-practice-adas: already completed, skipped" in said and "P01-baseline: already completed" in said
+    assert "| Trial 2 of 2 | adas | attempt 2 |" in said
+    assert load_trial(out / "trials" / "P01-adas-retry1").meta["status"] == "completed"
     assert main(["report", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["conditions"]["baseline"]["n"] == 2 and summary["conditions"]["adas"]["n"] == 2  # no practice

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import dt_highway  # noqa: F401
+from dt_highway.config import load_config
 from dt_highway.env import DTHighwayEnv
 from dt_highway.world.traffic import AGGRESSIVE, NORMAL
 
@@ -111,6 +112,30 @@ def test_twin_tag_observation(small_config):
     assert set(np.unique(known)) <= {0.0, 1.0}
     assert known.sum() >= 1  # at least one neighbour associated with the twin's view
     assert np.all((p >= 0) & (p <= 1))
+    env.close()
+
+
+def test_twin_tag_observation_with_the_intention(small_config):
+    small_config["twin"]["in_observation"] = True
+    small_config["twin"]["in_observation_intent"] = True
+    env = _make(small_config)
+    env.reset(seed=2)
+    u = env.unwrapped
+    h = u.dt_config.twin.intention.operating_horizon_s
+    seen = 0
+    for _ in range(10):
+        obs, _, terminated, truncated, _ = env.step(1)
+        assert obs.shape == (5, 9) and env.observation_space.contains(obs)
+        delivered = np.array([i.p_change for v in u.twin_view.vehicles if (i := v.intent(h)) is not None])
+        known, p, dlane = obs[1:, 5], obs[1:, 7], obs[1:, 8]
+        assert np.all(p[known == 0] == 0) and set(np.unique(dlane)) <= {-1.0, 0.0, 1.0}
+        for q in p[known == 1]:  # each associated car carries one of the delivered probabilities
+            assert np.abs(delivered - q).min() < 1e-6
+            seen += 1
+        if terminated or truncated:
+            break
+    assert seen >= 5
+    assert "in_observation_intent" not in load_config().to_dict()["twin"]  # off: dumps as before
     env.close()
 
 

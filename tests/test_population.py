@@ -215,7 +215,8 @@ def test_twin_eval_on_the_continuum_reports_the_ranking_scores(capsys):
                            min_observed_s=1.0)
     assert set(result) - set(two_class) == {
         "population", "auc_label", "auc_latent_above_median", "spearman_latent", "precision_at_recall_0_80",
-        "threshold_at_recall_0_80", "recall_at_threshold", "latent_median", "n_ranked"}
+        "threshold_at_recall_0_80", "recall_at_threshold", "latent_median", "n_ranked", "ceiling"}
+    assert set(result["ceiling"]) == {"auc_label", "precision_at_recall_0_80", "drivers"}
     assert result["population"] == "continuum"
     assert result["n_ranked"] == result["n_aggressive"] + result["n_normal"] > 0
     assert 0.0 <= result["auc_label"] <= 1.0 and 0.0 <= result["auc_latent_above_median"] <= 1.0
@@ -261,3 +262,20 @@ def test_the_cli_refuses_an_unknown_population(capsys):
         main(["twin-eval", "--population", "three"])
     assert exc.value.code == 2
     assert "--population" in capsys.readouterr().err
+
+
+def test_population_ceiling_follows_how_strongly_the_parameters_carry_the_latent_score():
+    from dt_highway.evaluation.twin import population_ceiling
+
+    names = list(load_config().traffic.continuum.traits())
+    strong = load_config(overrides=[f"traffic.continuum.{k}.corr_z=0.99" for k in names])
+    none = load_config(overrides=[f"traffic.continuum.{k}.corr_z=0.0" for k in names])
+    top = population_ceiling(strong, drivers=20000)
+    blind = population_ceiling(none, drivers=20000)
+    shipped = population_ceiling(load_config(), drivers=20000)
+    assert top["auc_label"] > 0.995 and top["precision_at_recall_0_80"] > 0.95
+    assert abs(blind["auc_label"] - 0.5) < 0.03 and blind["precision_at_recall_0_80"] < 0.3  # 0.2 by chance
+    # the shipped correlations (0.4-0.8): a good ranking, but precision 0.90 at recall 0.80 is out of reach
+    assert 0.94 < shipped["auc_label"] < 0.99 and 0.7 < shipped["precision_at_recall_0_80"] < 0.85
+    with pytest.raises(ValueError, match="drivers must be >= 100"):
+        population_ceiling(load_config(), drivers=10)

@@ -135,7 +135,7 @@ def load_policy(path: str | Path) -> PolicyDriver:
         model = getattr(sb3, config.algorithm).load(str(p), device="cpu")
     except Exception as err:  # noqa: BLE001 - a damaged or foreign zip: say so in one line
         raise ConfigError(f"cannot load {p} as a {config.algorithm} model: {type(err).__name__}: {err}") from None
-    n = len(config.speeds_mps) + 2 if config.action == "assisted" else len(config.accels_mps2) + 2
+    n = len(config.speeds_mps) + 2 if config.action.startswith("assisted") else len(config.accels_mps2) + 2
     if not isinstance(model.action_space, spaces.Discrete) or model.action_space.n != n:
         raise ConfigError(f"{p} chooses from {model.action_space}, but its training file's menu has {n} entries")
     return PolicyDriver(p.stem, model, config, meta)

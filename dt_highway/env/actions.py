@@ -148,14 +148,19 @@ class DiscreteDriverAction(DriverAction):
     :param accels_mps2: raw pedals: the accelerations to choose from [m/s^2], within the Driver limits
     :param assist: the assisted menu instead of raw pedals
     :param speeds_mps: assisted: the desired speeds to choose from [m/s]
+    :param reaction_time_s: assisted: the gap keeping's reaction time to a car newly in the lane [s]
+        (0: none; the delayed menu of :class:`~dt_highway.drivers.menus.AssistedMenu`)
+    :param brake_limit_mps2: assisted: the gap keeping's hardest braking [m/s^2]
     """
 
     def __init__(self, env: DTHighwayEnv, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
-                 speeds_mps: Any = None, **kwargs: Any) -> None:
+                 speeds_mps: Any = None, reaction_time_s: float = 0.0, brake_limit_mps2: float = -ACCEL_MIN_MPS2,
+                 **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if self.steering:
             raise ValueError("the DiscreteDriver action requests lanes: steering = true is not available")
-        self.choices = DiscreteMenu(accels_mps2, assist, speeds_mps, self.accel_min_mps2, self.accel_max_mps2)
+        self.choices = DiscreteMenu(accels_mps2, assist, speeds_mps, self.accel_min_mps2, self.accel_max_mps2,
+                                    reaction_time_s, brake_limit_mps2)
 
     def space(self) -> spaces.Discrete:
         return spaces.Discrete(self.choices.size)

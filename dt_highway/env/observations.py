@@ -23,10 +23,12 @@ from scipy.optimize import linear_sum_assignment
 
 from dt_highway.camera.render import depth_to_uint8
 from dt_highway.config import ConfigError
+from dt_highway.drivers.perception import Mark
 from dt_highway.env.senses import cars_under_marks
 from dt_highway.labels import AGGRESSIVE
 from dt_highway.overlay import draw_overlay
 from dt_highway.twin.cloud import TwinView
+from dt_highway.twin.intention import NO_LANE
 from dt_highway.world.observation import FastKinematicObservation
 from dt_highway.world.traffic import vehicle_id
 
@@ -47,6 +49,11 @@ class _KinematicsPlus(FastKinematicObservation):
         super().__init__(env, **kwargs)
         self.base_features = list(self.features)
         self.features = self.base_features + self.EXTRA_FEATURES
+        self._rows: list[Any] | None = None
+
+    def observed(self) -> list[Any]:
+        """The observer and the rows' objects; inside :meth:`observe`, the list it already found."""
+        return self._rows if self._rows is not None else super().observed()
 
     def observe(self) -> np.ndarray:
         if not self.env.road:
@@ -54,10 +61,10 @@ class _KinematicsPlus(FastKinematicObservation):
         features, self.features = self.features, self.base_features
         order, self.order = self.order, "sorted"
         try:
+            rows = self._rows = super().observed()  # once per step: the base rows and the extra columns share it
             base = super().observe()
-            rows = self.observed()
         finally:
-            self.features, self.order = features, order
+            self.features, self.order, self._rows = features, order, None
         out = np.zeros((base.shape[0], len(self.features)), dtype=base.dtype)
         out[:, : base.shape[1]] = base
         self.fill(out[:, base.shape[1]:], rows[: base.shape[0]])
@@ -79,11 +86,26 @@ class TwinTaggedKinematics(_KinematicsPlus):
     position is moved forward by its age at its reported speed and heading, and observed
     vehicles are matched to them by minimum total distance (Hungarian), gated at
     ``GATE_M``. Ground truth is never read.
+
+    With ``twin.in_observation_intent`` two more columns carry the delivered lane-change intention
+    at the operating horizon (``twin.intention.operating_horizon_s``) of an associated vehicle:
+    ``twin_p_change``, the probability that it changes lane within that horizon, and
+    ``twin_target_dlane``, the lane it would move to relative to its own lane in the twin's map
+    (-1 left, +1 right, 0 none).
     """
 
     EXTRA_FEATURES = ["twin_known", "twin_aggressive"]
+    INTENT_FEATURES = ["twin_p_change", "twin_target_dlane"]
+    """The intention columns (``twin.in_observation_intent``)"""
     GATE_M = 6.0
     """Largest distance between an observed vehicle and a twin position to associate them [m]"""
+
+    def __init__(self, env: DTHighwayEnv, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        twin = env.dt_config.twin
+        self.intent_horizon_s = twin.intention.operating_horizon_s if twin.in_observation_intent else None
+        if self.intent_horizon_s is not None:
+            self.features = self.features + self.INTENT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
         view: TwinView | None = self.env.twin_view
@@ -102,6 +124,12 @@ class TwinTaggedKinematics(_KinematicsPlus):
                 tv = view.vehicles[c]
                 extra[r + 1, 0] = 1.0
                 extra[r + 1, 1] = tv.confidence if tv.tag == AGGRESSIVE else 1.0 - tv.confidence
+                intent = tv.intent(self.intent_horizon_s) if self.intent_horizon_s is not None else None
+                if intent is not None:
+                    extra[r + 1, 2] = intent.p_change
+                    if intent.target_lane != NO_LANE:
+                        own_lane = int(self.env.road_map.lane_of_one(tv.y_m))
+                        extra[r + 1, 3] = float(np.sign(intent.target_lane - own_lane))
 
 
 class OverlayKinematics(_KinematicsPlus):
@@ -113,18 +141,49 @@ class OverlayKinematics(_KinematicsPlus):
     fusion put the label on the wrong car, this column is on the wrong car too; without the
     ADAS (camera or fusion off, the baseline condition) it is all zeros. The twin's verdict
     reaches the observation only through the fusion and the overlay, never from ground truth.
+
+    With ``threat = true`` (the ``adas-threat`` training setting) two more columns carry the threat
+    cue, read from the label drawn on the car as a person reads it
+    (:attr:`~dt_highway.drivers.perception.Mark.is_cut_in`, :attr:`~dt_highway.drivers.perception.Mark.side`):
+    ``cut_in_warned``, 1 when a mark on that car says "cutting in"; ``side``, the side its label says
+    the car comes from (-1 left, +1 right, 0 not said). The ``sham`` condition's marks, being what
+    is on the screen, fill these columns the same way.
+
+    :param env: the env
+    :param threat: add the threat-cue columns
     """
 
     EXTRA_FEATURES = ["marked"]
+    THREAT_FEATURES = ["cut_in_warned", "side"]
+    """The columns of the threat cue (``threat = true``)"""
+
+    def __init__(self, env: DTHighwayEnv, threat: bool = False, **kwargs: Any) -> None:
+        super().__init__(env, **kwargs)
+        self.threat = bool(threat)
+        if self.threat:
+            self.features = self.features + self.THREAT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
         adas = self.env.adas_output()
         if adas is None or not adas["overlay"]:
             return
-        marked = cars_under_marks(self.env, adas["overlay"])
-        for r, v in enumerate(rows[1:], start=1):
-            if vehicle_id(v) in marked:
-                extra[r, 0] = 1.0
+        if not self.threat:
+            marked = cars_under_marks(self.env, adas["overlay"])
+            for r, v in enumerate(rows[1:], start=1):
+                if vehicle_id(v) in marked:
+                    extra[r, 0] = 1.0
+            return
+        row_of = {vehicle_id(v): r for r, v in enumerate(rows[1:], start=1)}
+        for item in adas["overlay"]:  # each mark on the car a person sees it on (as cars_under_marks, one at a time)
+            row = next((row_of[c] for c in cars_under_marks(self.env, [item]) if c in row_of), None)
+            if row is None:
+                continue
+            x1, y1, x2, y2 = (float(b) for b in item["box"])
+            mark = Mark((x1, y1, x2, y2), str(item.get("label", "")))
+            extra[row, 0] = 1.0
+            if mark.is_cut_in:
+                extra[row, 1] = 1.0
+                extra[row, 2] = float(mark.side)
 
 
 class CameraObservation(ObservationType):

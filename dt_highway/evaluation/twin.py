@@ -20,7 +20,10 @@ driver is aggressive (its confidence in the tag it gave, or one minus it), again
 * ``auc_latent_above_median``: ROC AUC against "latent score above the population's median";
 * ``spearman_latent``: Spearman's rank correlation with the latent score itself;
 * ``precision_at_recall_0_80``: the best precision over thresholds on that probability whose recall
-  is at least 0.80 (with the threshold, ``threshold_at_recall_0_80``, and the recall there).
+  is at least 0.80 (with the threshold, ``threshold_at_recall_0_80``, and the recall there);
+* ``ceiling``: the same two scores for a ranking no twin can beat with a linear read of the drivers'
+  behaviour: :func:`population_ceiling`, the best linear combination of every driver's **true**
+  parameters (all eleven, as if the twin knew them exactly).
 
 An AUC is the Mann-Whitney ``U / (n1 n2)`` (``scipy.stats.mannwhitneyu``; ties count one half,
 as the trapezoidal ROC area; scikit-learn is not a dependency). With the two-class default the
@@ -36,10 +39,11 @@ from typing import Any
 
 import numpy as np
 
-from dt_highway.config import ConfigError, DTConfig, merge
+from dt_highway.config import ConfigError, DTConfig, NormalTrait, merge
 from dt_highway.env import DTHighwayEnv
 from dt_highway.labels import AGGRESSIVE
 from dt_highway.twin.tagger import DriverRecord
+from dt_highway.world.continuum import draw_traits, top_share
 from dt_highway.world.traffic import EGO_ID, Driver, DriverPopulation
 
 
@@ -92,9 +96,48 @@ def evaluate_twin(
     if latent_median is None:
         return result
     ranks = _ranking_scores(score.ranked, latent_median)
+    ranks["ceiling"] = population_ceiling(cfg, seed=seed)
     at = list(result).index("episodes")  # beside the other scores
     items = list(result.items())
     return dict(items[:at] + list(ranks.items()) + items[at:])
+
+
+CEILING_DRIVERS = 40_000
+"""Drivers drawn for :func:`population_ceiling` (half to fit the combination, half to score it)"""
+
+
+def population_ceiling(config: DTConfig, drivers: int = CEILING_DRIVERS, seed: int = 0) -> dict[str, float]:
+    """What a tagger that knew every driver's true parameters could score on the continuum.
+
+    Draws ``drivers`` drivers of ``config.traffic.continuum`` (:func:`~dt_highway.world.continuum.draw_traits`),
+    labels the top ``traffic.aggressive_fraction`` by latent score, fits the least-squares linear
+    combination of the parameters (the logarithm of the log-normal ones: the copula values up to
+    clipping, for which the posterior mean of the latent score is linear) to the latent score on one
+    half, and ranks the other half by it. A ceiling for the twin, which sees about two minutes of
+    noisy fixes instead of the parameters.
+
+    :param config: the configuration (its ``traffic`` section)
+    :param drivers: drivers drawn, >= 100
+    :param seed: random seed
+    :return: ``auc_label`` and ``precision_at_recall_0_80`` of that ranking on the held-out half, ``drivers``
+    """
+    if drivers < 100:
+        raise ValueError(f"drivers must be >= 100 (got {drivers})")
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal(drivers)
+    values = draw_traits(config.traffic.continuum, z, rng)
+    traits = config.traffic.continuum.traits()
+    cols = [v if isinstance(traits[k], NormalTrait) else np.log(v) for k, v in values.items()]
+    design = np.column_stack([*cols, np.ones(drivers)])
+    label = top_share(z, config.traffic.aggressive_fraction)
+    half = drivers // 2
+    weights, *_ = np.linalg.lstsq(design[:half], z[:half], rcond=None)
+    score = design[half:] @ weights
+    return {
+        "auc_label": auc(score, label[half:]),
+        "precision_at_recall_0_80": precision_at_recall(score, label[half:], 0.80)[0],
+        "drivers": float(drivers),
+    }
 
 
 def _latent_median(population: DriverPopulation) -> float | None:

@@ -141,6 +141,10 @@ class KeyScriptError(ValueError):
 class KeyScript:
     """A timed key script: the key events of a trial, in time order.
 
+    Events at negative times (only through this constructor; a script file starts at 0) are keys
+    pressed during the countdown: the driving keys still held at t = 0 are pressed then
+    (:func:`dt_highway.hmi.drive.held_at_start`).
+
     :param events: the events (sorted by time; equal times keep their order)
     """
 

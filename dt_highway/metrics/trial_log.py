@@ -75,6 +75,12 @@ class TrialLogError(ValueError):
         self.reason = f"{file.name} {reason}"
 
 
+
+FINISHED_STATUSES = ("completed", "ended_by_collision")
+"""A trial's ``status`` when it is data: run to its end, or ended by a collision (a keyboard trial under
+``--on-crash end``; its rows stop at the crash, ``cut_short`` in its metrics)"""
+
+
 def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
@@ -197,7 +203,7 @@ def write_parquet(directory: str | Path, trial: Trial | None = None) -> Path:
     except ImportError:
         raise ImportError("Parquet output needs pyarrow: pip install 'dt-highway[parquet]'") from None
     trial = trial if trial is not None else load_trial(directory)
-    if trial.meta.get("status") != "completed":
+    if trial.meta.get("status") not in FINISHED_STATUSES:
         raise ValueError(
             f"trial {trial.path} is {trial.meta.get('status')}: Parquet is written only for completed trials"
         )
@@ -379,7 +385,7 @@ def _not_numbers(steps: pd.DataFrame) -> str | None:
 def check_trial(trial: Trial) -> str | None:
     """Why a trial read back cannot enter a study's statistics, or ``None`` when it can.
 
-    It can when it is ``completed``, its ``steps.csv`` has every column of :data:`STEP_COLUMNS`
+    It can when it is finished (:data:`FINISHED_STATUSES`), its ``steps.csv`` has every column of :data:`STEP_COLUMNS`
     with numbers (``True``/``False`` in :data:`BOOL_COLUMNS`), as many rows as the
     configured duration makes (:func:`expected_rows`; fewer only when a collision ended it, the
     last row crashed: a trial *cut short*), as many as ``meta.json`` counts written, and its
@@ -389,7 +395,7 @@ def check_trial(trial: Trial) -> str | None:
     :return: the reason, in a few words (``"steps.csv has 450 rows, 900 expected (60 s at 15 Hz)..."``)
     """
     meta, steps = trial.meta, trial.steps
-    if meta.get("status") != "completed":
+    if meta.get("status") not in FINISHED_STATUSES:
         why = meta.get("end_reason")
         return f"status {meta.get('status') or 'missing'}" + (f" ({why})" if why else "")
     if not (trial.path / STEPS).exists():

@@ -3,7 +3,10 @@
 The envs are ``gym.make("dt_highway:dt-highway-v0", config=...)`` (the id form that
 ``SubprocVecEnv`` children can import), each wrapped in ``Monitor`` and given a new seed at
 every episode (a fresh driver population and twin, as a study trial gets): env ``i`` of
-``n`` plays seeds ``seed * 1_000_000 + i + k n``. Every ``eval_every_steps`` the policy drives
+``n`` plays seeds ``seed * 1_000_000 + i + k n``. They run :func:`lean_env_config`'s configuration
+(what the observation and the reward do not read, off: the same observations and rewards, less
+work), ``n > 1`` of them as ``SubprocVecEnv`` worker processes of one torch and one OpenCV thread
+each (``dt-highway bench train`` measures both paths). Every ``eval_every_steps`` the policy drives
 ``eval_episodes`` held-out episodes (seeds ``eval_seed ..``, the same ones each time), and
 the best one is kept. Checkpoints and a CSV log of stable-baselines3's statistics go to
 ``<out>.d/``; TensorBoard logs optionally. Beside the model ``<out>.zip`` goes
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import multiprocessing
 import os
 import shutil
 import sys
@@ -24,6 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import stable_baselines3 as sb3
@@ -40,9 +45,11 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm.auto import tqdm
 
-from dt_highway.config import ConfigError
+from dt_highway.agent_config import RewardConfig
+from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.rl.config import TrainConfig
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
+from dt_highway.rl.rewards import RewardTermsLogger, SafetyReward
 
 if TYPE_CHECKING:
     from dt_highway.env import DTHighwayEnv
@@ -67,13 +74,57 @@ class Reseed(gym.Wrapper):
         return self.env.reset(seed=seed, options=options)
 
 
-def _make_env(env_config: dict[str, Any], first_seed: int, stride: int) -> Callable[[], gym.Env]:
-    """A factory of one of the vec env's envs (what ``SubprocVecEnv`` sends to its worker)."""
+def _make_env(env_config: dict[str, Any], first_seed: int, stride: int,
+              reward: RewardConfig | None = None) -> Callable[[], gym.Env]:
+    """A factory of one of the vec env's envs (what ``SubprocVecEnv`` sends to its worker);
+    ``reward``: the training file's reward (:class:`~dt_highway.rl.rewards.SafetyReward`; ``None``
+    or highway-env's alone: the env's own reward, unwrapped)."""
 
     def build() -> gym.Env:
-        return Monitor(Reseed(gym.make(ENV_ID, config=env_config), first_seed, stride))
+        if multiprocessing.parent_process() is not None:  # a SubprocVecEnv worker: one thread, the cores are the workers'
+            torch.set_num_threads(1)
+            cv2.setNumThreads(1)
+        env = gym.make(ENV_ID, config=env_config)
+        if reward is not None and not reward.is_highway_only():
+            env = SafetyReward(env, reward)
+        return Monitor(Reseed(env, first_seed, stride))
 
     return build
+
+
+LEAN_OBSERVATION_TYPES = ("Kinematics", "OverlayKinematics")
+"""Observation types whose needs :func:`lean_env_config` knows (any other keeps the whole simulation)"""
+
+
+def lean_env_config(env_config: DTConfig) -> tuple[DTConfig, list[str]]:
+    """The configuration the training envs run: the parts of the simulation that neither the
+    policy's observation nor the reward reads, switched off (``dt-highway train``'s cheap path).
+
+    * the cloud twin (uplink, store, tagger, intention, downlink), when the observation is
+      highway-env's ``Kinematics`` alone (fusion off, ``twin.in_observation`` off): data flows one
+      way and nothing in the world reads the twin, so traffic, observations and rewards are the same;
+    * the twin's intention estimate, when the observation reads only the type marks
+      (``OverlayKinematics`` without ``threat``, ``overlay.mode = "type"``) or the twin's tags
+      (``twin.in_observation``): neither the tagger nor a type mark reads it.
+
+    The camera, detector, fusion and overlay of the ``adas`` setting, and the safety samples the
+    reward reads, run as in a study. ``tests/test_bench_train.py`` checks that observations and
+    rewards are identical on seeded episodes, and ``dt-highway bench train`` checks it on each run.
+
+    :param env_config: the env configuration of the training file (:meth:`TrainConfig.env_config`)
+    :return: the configuration to train with, and what was switched off (empty: nothing)
+    """
+    obs = dict(env_config.highway.observation)
+    kind = obs.get("type", "Kinematics")
+    if kind not in LEAN_OBSERVATION_TYPES or obs.get("threat", False) or not env_config.twin.enabled:
+        return env_config, []
+    twin = env_config.twin
+    if kind == "Kinematics" and not twin.in_observation and not env_config.fusion.enabled:
+        return merge(env_config, {"twin": {"enabled": False}}), ["twin.enabled"]
+    type_marks_only = kind == "Kinematics" or env_config.overlay.mode == "type"
+    if type_marks_only and twin.intention.enabled:
+        return merge(env_config, {"twin": {"intention": {"enabled": False}}}), ["twin.intention.enabled"]
+    return env_config, []
 
 
 def _policy_name(cfg: TrainConfig) -> str:
@@ -147,11 +198,15 @@ class HeldOutEval(BaseCallback):
     :param episodes: episodes per evaluation
     :param seed: first seed
     :param directory: where the best model goes
+    :param reward: the training file's reward (``None``: the env's own)
     """
 
-    def __init__(self, env_config: dict[str, Any], every: int, episodes: int, seed: int, directory: Path) -> None:
+    def __init__(self, env_config: dict[str, Any], every: int, episodes: int, seed: int, directory: Path,
+                 reward: RewardConfig | None = None) -> None:
         super().__init__()
-        self.env = gym.make(ENV_ID, config=env_config)
+        self.env: gym.Env = gym.make(ENV_ID, config=env_config)
+        if reward is not None and not reward.is_highway_only():
+            self.env = SafetyReward(self.env, reward)
         self.every, self.episodes, self.seed, self.directory = every, episodes, seed, directory
         self.results: list[dict[str, Any]] = []
         self.best = -np.inf
@@ -217,7 +272,7 @@ def _close(venv: VecEnv) -> None:
 
 
 def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_envs: int | None = None,
-          tensorboard_dir: str | None = None, progress: bool = True) -> dict[str, Any]:
+          tensorboard_dir: str | None = None, progress: bool = True, lean: bool = True) -> dict[str, Any]:
     """Train a policy and save it with its metadata.
 
     :param cfg: training configuration
@@ -227,6 +282,9 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     :param n_envs: override of ``cfg.n_envs``
     :param tensorboard_dir: also write TensorBoard logs there (needs the ``tensorboard`` package)
     :param progress: show a progress bar
+    :param lean: train and evaluate in :func:`lean_env_config`'s configuration (same observations and
+        rewards, less work; the metadata's ``env_config`` stays the full one the policy drives in,
+        ``lean_switched_off`` names what was off)
     :return: the metadata written beside the model (``interrupted`` if stopped by Ctrl-C)
     :raises ConfigError: on a bad configuration, output path or missing TensorBoard
     """
@@ -243,11 +301,15 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     updates = {k: int(v) for k, v in (("timesteps", timesteps), ("n_envs", n_envs)) if v is not None}
     if updates:
         cfg = TrainConfig.model_validate({**cfg.model_dump(), **updates})
-    env_dict = cfg.env_config().to_dict()  # ConfigError on a bad scenario or override
+    env_cfg = cfg.env_config()  # ConfigError on a bad scenario or override
+    env_dict = env_cfg.to_dict()
+    run_cfg, switched_off = lean_env_config(env_cfg) if lean else (env_cfg, [])
+    run_dict = run_cfg.to_dict()
     # the evaluation env is built here, in this process: a setting the env refuses is a
     # one-line error now, not a traceback in a worker process
     try:
-        evaluator = HeldOutEval(env_dict, cfg.eval_every_steps, cfg.eval_episodes, cfg.eval_seed, out.with_suffix(".d"))
+        evaluator = HeldOutEval(run_dict, cfg.eval_every_steps, cfg.eval_episodes, cfg.eval_seed, out.with_suffix(".d"),
+                                cfg.reward)
     except ValueError as err:
         raise ConfigError(str(err)) from None
     if cfg.observation != "vision":
@@ -256,7 +318,7 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     if work.exists():
         shutil.rmtree(work)  # checkpoints of an earlier run of this file: not this run's
     work.mkdir(parents=True)
-    factories = [_make_env(env_dict, cfg.seed * 1_000_000 + i, cfg.n_envs) for i in range(cfg.n_envs)]
+    factories = [_make_env(run_dict, cfg.seed * 1_000_000 + i, cfg.n_envs, cfg.reward) for i in range(cfg.n_envs)]
     venv = SubprocVecEnv(factories, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(factories)
     interrupted = False
     try:
@@ -270,6 +332,8 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         model.set_logger(Logger(str(work), formats))
         callbacks = [evaluator, CheckpointCallback(max(1, cfg.checkpoint_every_steps // cfg.n_envs), str(work),
                                                    name_prefix="checkpoint")]
+        if not cfg.reward.is_highway_only():
+            callbacks.append(RewardTermsLogger())
         if progress:
             callbacks.append(_Progress(cfg.timesteps))
         t0 = time.perf_counter()
@@ -294,6 +358,7 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         "action": cfg.action,
         "train_config": cfg.model_dump(),
         "env_config": env_dict,
+        "lean_switched_off": switched_off,
         "versions": versions(),
         "timesteps_done": int(model.num_timesteps),
         "interrupted": interrupted,

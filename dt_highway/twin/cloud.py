@@ -154,6 +154,8 @@ class CloudTwin:
             self._dirty |= self.store.add(arrived)
         if now_s >= self._next_update_s:
             self._next_update_s = now_s + 1.0 / self.config.tagger.update_hz
+            if self.tagger.tracks_traffic:
+                self.tagger.observe_traffic(self.store, now_s)
             for vid in sorted(self._dirty):
                 self.tagger.update(self.store, vid, now_s)
             self._dirty.clear()

@@ -18,17 +18,27 @@ Only the received fix history is used (never the simulator's driver types).
    is ``n log(ra / rn) - (ra - rn) T``; with the prior this gives the posterior probability
    that the driver is aggressive. The tag is ``aggressive`` when it exceeds ``threshold``;
    the confidence is the posterior probability of the tag given.
+4. **Evidence model** (``model = "evidence"``, for a population without two clean classes such as
+   the continuum of drivers). The same lane changes plus the driver's longitudinal behaviour, sampled
+   at every tagger update from the latest second of fixes of every connected vehicle: its speed, its
+   speed against the median of the traffic the twin sees, and its time headway to the connected
+   vehicle ahead in its lane (when within ``FOLLOW_RANGE_M``). The probability is a logistic model of
+   the ten features :data:`EVIDENCE_FEATURES` whose weights were fitted on simulated training seeds
+   (``dt-highway train-tagger``; shipped as ``tagger_evidence.json``); the tag and confidence follow
+   from it as in 3.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from dt_highway.config import TaggerConfig
+from dt_highway.config import ConfigError, TaggerConfig
 from dt_highway.labels import AGGRESSIVE, NORMAL
 from dt_highway.twin.store import FixStore
 
@@ -243,6 +253,13 @@ class DriverRecord:
     :param confidence: posterior probability of ``tag``
     :param first_aggressive_s: twin time the tag first became aggressive [s] (or None)
     :param evidence: the last sudden lane changes (with their times)
+
+    The evidence model's tallies (kept in every record, filled by the tagger's ``evidence`` model only):
+    ``n_timed`` lane changes whose lateral speed was timed, the largest of those speeds
+    ``max_lateral_speed_mps`` [m/s], the smallest accepted gap ``min_gap_s`` [s]; ``n_samples``
+    traffic samples (:meth:`Tagger.observe_traffic`) with the sums of speed [m/s], squared speed
+    [m^2/s^2] and speed minus the traffic's median [m/s], ``n_following`` samples with a leader
+    within ``FOLLOW_RANGE_M`` and the sum of the time headways to it ``headway_sum_s`` [s].
     """
 
     vehicle_id: int
@@ -256,6 +273,116 @@ class DriverRecord:
     evidence: list[LaneChange] = field(default_factory=list)
     last_fix_s: float = -math.inf
     counted_until_s: float = -math.inf
+    n_timed: int = 0
+    max_lateral_speed_mps: float = 0.0
+    min_gap_s: float = math.inf
+    n_samples: int = 0
+    speed_sum: float = 0.0
+    speed_sq_sum: float = 0.0
+    speed_rel_sum: float = 0.0
+    n_following: int = 0
+    headway_sum_s: float = 0.0
+
+
+SAMPLE_WINDOW_S = 1.0
+"""A traffic sample averages each vehicle's fixes of this last stretch [s]"""
+FOLLOW_RANGE_M = 60.0
+"""A vehicle ahead in the same lane within this bumper gap is the leader of a headway sample [m]"""
+VEHICLE_LENGTH_M = 5.0
+"""Length assumed for bumper gaps (the twin does not know the cars' lengths) [m]"""
+EVIDENCE_WEIGHTS_FILE = "tagger_evidence.json"
+"""The shipped weights of the evidence model, in this package"""
+EVIDENCE_FEATURES = (
+    "log_max_lateral_speed",  # log of the largest timed lateral speed of its lane changes (log 0.5 m/s if none) [log m/s]
+    "has_timed_change",  # 1 when a lane change was timed
+    "lane_changes_per_min",  # lane changes per observed minute [1/min]
+    "sudden_per_min",  # sudden lane changes per observed minute [1/min]
+    "min_gap",  # smallest accepted time gap to the new follower, capped at 3 s [s]
+    "speed_rel",  # mean speed minus the traffic's median [m/s]
+    "speed",  # mean speed [m/s]
+    "headway",  # mean time headway while following, capped at 3 s (3 if never) [s]
+    "following_share",  # share of samples with a leader within FOLLOW_RANGE_M [-]
+    "speed_sd",  # standard deviation of the sampled speeds [m/s]
+)
+"""The evidence model's inputs, in order (:func:`evidence_features`)"""
+EVIDENCE_FULL_S = 30.0
+"""Observation after which the evidence model speaks alone (its training drivers were observed >= 30 s) [s]"""
+_GAP_CAP_S = 3.0
+
+
+def evidence_features(rec: DriverRecord) -> np.ndarray:
+    """The evidence model's inputs of one driver (:data:`EVIDENCE_FEATURES`) from its record."""
+    minutes = max(rec.observed_s, 1.0) / 60.0
+    n = max(rec.n_samples, 1)
+    mean_v = rec.speed_sum / n
+    return np.array([
+        math.log(rec.max_lateral_speed_mps) if rec.n_timed and rec.max_lateral_speed_mps > 0 else math.log(0.5),
+        float(rec.n_timed > 0),
+        rec.n_lane_changes / minutes,
+        rec.n_sudden / minutes,
+        min(rec.min_gap_s, _GAP_CAP_S),
+        rec.speed_rel_sum / n,
+        mean_v,
+        min(rec.headway_sum_s / rec.n_following, _GAP_CAP_S) if rec.n_following else _GAP_CAP_S,
+        rec.n_following / n,
+        math.sqrt(max(rec.speed_sq_sum / n - mean_v * mean_v, 0.0)),
+    ])
+
+
+@dataclass(frozen=True)
+class EvidenceModel:
+    """Logistic model of P(aggressive) from :data:`EVIDENCE_FEATURES`:
+    ``sigmoid(bias + weights . (features - mean) / scale)``.
+
+    :param mean: the training features' means
+    :param scale: their standard deviations
+    :param weights: one weight per feature
+    :param bias: the intercept
+    """
+
+    mean: np.ndarray
+    scale: np.ndarray
+    weights: np.ndarray
+    bias: float
+
+    @staticmethod
+    def load(path: str | Path | None = None) -> EvidenceModel:
+        """Read weights written by :meth:`save` (``None``: the shipped file).
+
+        :raises ConfigError: one line, when the file is missing, not JSON, or names other features
+        """
+        file = Path(__file__).with_name(EVIDENCE_WEIGHTS_FILE) if path is None else Path(path)
+        try:
+            d = json.loads(file.read_text())
+            names = tuple(d["features"])
+            model = EvidenceModel(np.asarray(d["mean"], float), np.asarray(d["scale"], float),
+                                  np.asarray(d["weights"], float), float(d["bias"]))
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ConfigError(f"twin.tagger.evidence_weights: cannot read {file} ({e})") from None
+        if names != EVIDENCE_FEATURES or not (len(model.mean) == len(model.scale) == len(model.weights) == len(names)):
+            raise ConfigError(f"twin.tagger.evidence_weights: {file} holds other features than {', '.join(EVIDENCE_FEATURES)}")
+        return model
+
+    def save(self, path: str | Path, **meta: object) -> None:
+        """Write the weights (and ``meta``, e.g. the training seeds) as JSON."""
+        d = {"features": list(EVIDENCE_FEATURES), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
+             "weights": self.weights.tolist(), "bias": self.bias, **meta}
+        Path(path).write_text(json.dumps(d, indent=1) + "\n")
+
+    def probability(self, features: np.ndarray, observed_s: float = math.inf, prior: float = 0.2) -> float:
+        """P(aggressive) for one driver's features. The model was fitted on drivers observed for at least
+        ``EVIDENCE_FULL_S``; before that its log-odds are blended with the prior's, in proportion to the
+        time observed (a few seconds of fixes do not make a verdict).
+
+        :param features: :func:`evidence_features`
+        :param observed_s: how long the driver has been observed [s]
+        :param prior: the prior probability of an aggressive driver [-]
+        :return: the probability, in (0, 1)
+        """
+        s = self.bias + float(self.weights @ ((features - self.mean) / self.scale))
+        share = min(max(observed_s / EVIDENCE_FULL_S, 0.0), 1.0)
+        s = share * s + (1.0 - share) * math.log(prior / (1.0 - prior))
+        return 1.0 / (1.0 + math.exp(-max(min(s, 50.0), -50.0)))
 
 
 class Tagger:
@@ -287,6 +414,10 @@ class Tagger:
         self.config = config
         self.road = road
         self.records: dict[int, DriverRecord] = {}
+        self.evidence_model = EvidenceModel.load(config.evidence_weights) if config.model == "evidence" else None
+        self.tracks_traffic = self.evidence_model is not None
+        """Whether :meth:`observe_traffic` tallies the drivers' longitudinal behaviour (the evidence model's
+        inputs; a training harness switches it on with the ``sudden`` model too)"""
         self.on_lane_change: Callable[[int, LaneChange], None] | None = None
         """Optional callback, called with (vehicle_id, lane change) for every judged change"""
 
@@ -371,6 +502,11 @@ class Tagger:
             sudden = bool(speed > cfg.sudden_lateral_speed_mps or gap < cfg.sudden_gap_s)  # NaN compares False
             lc = LaneChange(t_c, lane_from, lane_to, dur, speed, gap, sudden)
             rec.n_lane_changes += 1
+            if speed == speed:  # timed (not NaN)
+                rec.n_timed += 1
+                rec.max_lateral_speed_mps = max(rec.max_lateral_speed_mps, speed)
+            if gap == gap:
+                rec.min_gap_s = min(rec.min_gap_s, gap)
             if self.on_lane_change is not None:
                 self.on_lane_change(vehicle_id, lc)
             if sudden:
@@ -393,8 +529,45 @@ class Tagger:
         sigma = 1.4826 * median(np.abs(y[1:] - y[:-1])) / math.sqrt(2.0)
         return sigma / math.sqrt(max(1.0, n_window))
 
+    def observe_traffic(self, store: FixStore, now_s: float) -> None:
+        """One traffic sample for every vehicle with a fix in the last second: speed, speed against
+        the median of those vehicles, time headway to the nearest of them ahead in its lane (the evidence
+        model's inputs; positions and speeds are means over that second of fixes).
+
+        :param store: the fix store
+        :param now_s: twin time [s]
+        """
+        rows = []
+        for vid in store.vehicle_ids():
+            h = store.history(vid)
+            if len(h) == 0 or h[-1, 0] < now_s - SAMPLE_WINDOW_S:
+                continue
+            last = h[h[:, 0].searchsorted(h[-1, 0] - SAMPLE_WINDOW_S, side="right"):]
+            rows.append((vid, float(last[:, 1].mean()), float(last[:, 2].mean()), float(last[:, 3].mean())))
+        if not rows:
+            return
+        x = np.array([r[1] for r in rows])
+        v = np.array([r[3] for r in rows])
+        lane = self.road.lane_of(np.array([r[2] for r in rows]))
+        v_median = median(v)
+        for i, (vid, _, _, _) in enumerate(rows):
+            rec = self.record(vid, now_s)
+            rec.n_samples += 1
+            rec.speed_sum += v[i]
+            rec.speed_sq_sum += v[i] * v[i]
+            rec.speed_rel_sum += v[i] - v_median
+            ahead = np.where((lane == lane[i]) & (x > x[i]), x, np.inf)
+            j = int(np.argmin(ahead))
+            gap = ahead[j] - x[i] - VEHICLE_LENGTH_M
+            if math.isfinite(gap) and gap < FOLLOW_RANGE_M:
+                rec.n_following += 1
+                rec.headway_sum_s += gap / max(v[i], 1.0)
+
     def _retag(self, rec: DriverRecord, now_s: float) -> None:
-        p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)
+        if self.evidence_model is not None:
+            p = self.evidence_model.probability(evidence_features(rec), rec.observed_s, self.config.prior_aggressive)
+        else:
+            p = posterior_aggressive(rec.n_sudden, rec.observed_s, self.config)
         if p >= self.config.threshold:
             rec.tag, rec.confidence = AGGRESSIVE, p
             if rec.first_aggressive_s is None:

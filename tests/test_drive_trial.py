@@ -1,0 +1,438 @@
+"""The keyboard trial for participants (issue 20): keys held through the countdown, event times
+at their real moment with the wall clock, pauses and signals logged, crash feedback and policy,
+participant screens (no condition names, no paths, Enter-only end screen), window size and
+scaling, the mirror hook. Headless (SDL offscreen), scripted keys or posted pygame events."""
+
+import json
+import os
+import signal
+import sys
+import threading
+import time
+import types
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pygame
+import pytest
+
+from dt_highway.cli import main
+from dt_highway.config import ConfigError
+from dt_highway.hmi import drive
+from dt_highway.hmi.drive import (
+    CRASH_BANNER_S,
+    MIRROR_FRACTION,
+    QUIT_LINES,
+    DriveOptions,
+    Hud,
+    _trial_config,
+    _Window,
+    beep_samples,
+    compose_frame,
+    crash_layer,
+    dialog,
+    held_at_start,
+    parse_size,
+    run_drive,
+)
+from dt_highway.hmi.keys import KeyEvent, KeyScript
+from dt_highway.metrics.trial_log import check_trial, load_trial
+
+QUIET = ["highway.vehicles_count=16", "twin.preroll_s=20", "camera.width_px=480", "camera.height_px=270"]
+V1 = "envs/highway-trial-v1.toml"  # no near-miss cut-ins: no crash in the first seconds
+
+
+def _opts(tmp_path, participant="P01", condition="adas", **kw):
+    base = {"scenario": V1, "overrides": list(QUIET), "duration_s": 1.5, "simulation_hz": 15, "minimap": False}
+    return DriveOptions(participant, condition, tmp_path / "s", **{**base, **kw})
+
+
+def _keys(trial):
+    return [(e["t_s"], e["kind"], e["key"]) for e in trial.events if e["kind"].startswith("key_")]
+
+
+def _no_release_without_press(trial):
+    held = set()
+    for e in trial.events:
+        if e["kind"] == "key_down":
+            held.add(e["key"])
+        elif e["kind"] == "key_up":
+            assert e["key"] in held, f"{e['key']} released at {e['t_s']} s without a press"
+            held.discard(e["key"])
+
+
+# ------------------------------------------------------------------------------------ 1. countdown
+def test_held_at_start_keeps_the_driving_keys_still_down():
+    evs = [KeyEvent(-2.5, True, "UP"), KeyEvent(-2.0, True, "DOWN"), KeyEvent(-1.0, False, "DOWN"),
+           KeyEvent(-0.8, True, "P"), KeyEvent(-0.5, True, "LEFT")]
+    assert held_at_start(evs) == {"UP": -2.5, "LEFT": -0.5}  # DOWN was released, P is not a driving key
+
+
+def test_a_key_held_through_the_countdown_acts_and_is_logged_at_t0_and_pauses_are_logged(tmp_path):
+    script = KeyScript([KeyEvent(-1.2, True, "UP"), KeyEvent(-0.6, True, "DOWN"), KeyEvent(-0.4, False, "DOWN"),
+                        KeyEvent(0.4, False, "UP"), KeyEvent(0.6, True, "P"), KeyEvent(0.7, False, "P"),
+                        KeyEvent(1.6, True, "P"), KeyEvent(1.7, False, "P")])  # paused 1.0 s of wall time
+    result = run_drive(_opts(tmp_path, keys_from=script), say=lambda s: None)
+    trial = load_trial(result["directory"])
+    # a script's pause lasts in wall time: its keys during the pause keep the script's times; 1.7 s is after the end
+    assert _keys(trial) == [(0.0, "key_down", "UP"), (0.4, "key_up", "UP"), (0.6, "key_down", "P"),
+                            (0.7, "key_up", "P"), (1.6, "key_down", "P")]
+    first = next(e for e in trial.events if e["kind"] == "key_down")
+    assert first["pressed_at_s"] == -1.2
+    _no_release_without_press(trial)
+    accel = trial.steps["action_accel_mps2"].to_numpy()
+    # the throttle from the first step: coast -0.3 m/s^2 plus 2.5 m/s^3 for 1/15 s (without the carry-over: -0.3)
+    assert accel[0] == pytest.approx(-0.3 + 2.5 / 15) and accel[5] == pytest.approx(-0.3 + 6 * 2.5 / 15)
+    assert trial.steps["keys"].fillna("").iloc[0] == "UP"
+    starts = [e for e in trial.events if e["kind"] == "pause_start"]
+    ends = [e for e in trial.events if e["kind"] == "pause_end"]
+    assert len(starts) == len(ends) == 1 and starts[0]["t_s"] == pytest.approx(0.6) and starts[0]["reason"] == "P"
+    assert ends[0]["duration_s"] == pytest.approx(1.0, abs=0.08)
+    assert trial.meta["paused_s"] == pytest.approx(1.0, abs=0.08) and len(trial.meta["pauses"]) == 1
+    walls = {e["kind"]: datetime.fromisoformat(e["wall_time"]) for e in (starts[0], ends[0])}
+    assert (walls["pause_end"] - walls["pause_start"]).total_seconds() == pytest.approx(1.0, abs=0.08)
+    assert all("wall_time" in e for e in trial.events)  # every event, the recorder's too
+
+
+def _interactive(tmp_path, plan, *, condition="sham", label="Trial 2", duration_s=30.0, captions=None):
+    """Run an interactive trial; ``plan[n]`` lists the pygame events posted after the n-th frame shown."""
+    shown = []
+
+    def on_frame(img):
+        shown.append(img)
+        if captions is not None:
+            captions.append(pygame.display.get_caption()[0])
+        for kind, key in plan.get(len(shown), ()):
+            pygame.event.post(pygame.event.Event(kind, key=key) if key is not None else pygame.event.Event(kind))
+
+    lines = []
+    result = run_drive(_opts(tmp_path, condition=condition, display_label=label, duration_s=duration_s),
+                       on_frame=on_frame, say=lines.append)
+    return result, shown, lines
+
+
+def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_only_end_screen(tmp_path, monkeypatch):
+    down, up = pygame.KEYDOWN, pygame.KEYUP
+    texts = []
+    real_text = drive._text
+    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real_text(img, text, *a, **k)))
+    end_shown = []
+    orig_card = drive.card
+
+    def card(size, title, lines):  # on the end screen: a stray arrow and a letter first, Enter only 0.6 s later
+        if title == "Trial saved":
+            end_shown.append(time.monotonic())
+            pygame.event.post(pygame.event.Event(down, key=pygame.K_UP))
+            pygame.event.post(pygame.event.Event(down, key=pygame.K_a))
+            threading.Timer(0.6, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_RETURN))).start()
+        return orig_card(size, title, lines)
+
+    monkeypatch.setattr(drive, "card", card)
+    plan = {2: [(down, pygame.K_RETURN)],  # the keys screen
+            3: [(down, pygame.K_UP)],  # during "3": held through the countdown
+            12: [(down, pygame.K_LEFT)], 14: [(up, pygame.K_LEFT)], 20: [(up, pygame.K_UP)],
+            30: [(down, pygame.K_ESCAPE)], 34: [(down, pygame.K_ESCAPE)]}
+    captions = []
+    result, shown, lines = _interactive(tmp_path, plan, captions=captions)
+    t_end = time.monotonic()
+    assert result["status"] == "aborted" and result["end_reason"] == "quit by the participant"
+    trial = load_trial(result["directory"])
+    keys = _keys(trial)
+    assert keys[0] == (0.0, "key_down", "UP") and trial.events[[e["kind"] for e in trial.events].index("key_down")][
+        "pressed_at_s"] < -1.0  # pressed during "3"
+    assert [k[1:] for k in keys] == [("key_down", "UP"), ("key_down", "LEFT"), ("key_up", "LEFT"), ("key_up", "UP"),
+                                     ("key_down", "ESC"), ("key_down", "ESC")]
+    _no_release_without_press(trial)
+    times = [k[0] for k in keys]
+    assert times == sorted(times)
+    on_grid = [abs(t * 15 - round(t * 15)) < 1e-3 for t in times[1:4]]
+    assert not all(on_grid)  # times at the moment, not rounded to the 67 ms step
+    walls = [datetime.fromisoformat(e["wall_time"]) for e in trial.events if e["kind"] in ("key_down", "key_up")]
+    dt_wall = (walls[3] - walls[1]).total_seconds()  # LEFT down -> UP up: no pause between
+    assert dt_wall == pytest.approx(times[3] - times[1], abs=0.07)
+    # the screens: a neutral label, never the condition, never a path; the title is dt-highway
+    said = " | ".join(texts).lower()
+    assert "trial 2" in said and "sham" not in said and "adas" not in said and "baseline" not in said
+    assert "trials/" not in said and str(tmp_path).lower() not in said and "p01-" not in said
+    assert set(captions) == {"dt-highway"}
+    assert any(t == "Quit the trial?" for t in texts)
+    # "Trial saved" waited for Enter: the arrow and the letter did not dismiss it
+    assert len(end_shown) == 1 and t_end - end_shown[0] >= 0.55
+    # the experimenter's line in the terminal
+    assert len(lines) == 1 and lines[0].startswith("P01 sham: aborted (quit by the participant), ")
+    assert "0 crashes" in lines[0] and " of 30 s" in lines[0] and str(tmp_path) in lines[0]
+
+
+# ------------------------------------------------------------------------------------ 2. window close, signals
+def test_a_window_manager_close_ends_the_trial_within_a_second(tmp_path):
+    posted = []
+    n = [0]
+
+    def on_frame(img):
+        n[0] += 1
+        if n[0] == 2:  # the keys screen
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_RETURN))
+        if n[0] == 15:  # in the trial: the window manager closes the window
+            posted.append(time.monotonic())
+            pygame.event.post(pygame.event.Event(pygame.QUIT))
+
+    result = run_drive(_opts(tmp_path, duration_s=30.0), on_frame=on_frame, say=lambda s: None)
+    took = time.monotonic() - posted[0]
+    assert result["status"] == "aborted" and result["end_reason"] == "window closed"
+    assert took < 1.0, took
+    trial = load_trial(result["directory"])
+    assert [e["kind"] for e in trial.events if e["kind"] == "window_closed"] == ["window_closed"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_sigterm_and_sigint_end_the_trial_as_such(tmp_path, sig):
+    before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    n = [0]
+
+    def on_frame(img):
+        n[0] += 1
+        if n[0] == 15:
+            os.kill(os.getpid(), sig)
+
+    result = run_drive(_opts(tmp_path, keys_from=KeyScript([]), duration_s=30.0), on_frame=on_frame, say=lambda s: None)
+    name = signal.Signals(sig).name
+    assert result["status"] == "aborted" and result["end_reason"] == name
+    trial = load_trial(result["directory"])
+    assert trial.meta["end_reason"] == name and trial.meta["status"] == "aborted"
+    assert [e["signal"] for e in trial.events if e["kind"] == "signal"] == [name]
+    assert trial.steps["t_s"].max() < 5.0
+    assert {s: signal.getsignal(s) for s in before} == before  # handlers given back
+
+
+def test_sigterm_to_a_drive_process_is_logged_as_sigterm(tmp_path):
+    import subprocess
+
+    out = tmp_path / "s"
+    keys = tmp_path / "k.txt"
+    keys.write_text("0.1 down UP\n")
+    proc = subprocess.Popen([sys.executable, "-m", "dt_highway.cli", "drive", "--participant", "P09", "--condition",
+                             "baseline", "--duration", "60", "--out", str(out), "--keys-from", str(keys),
+                             "--scenario", V1, *[a for o in QUIET for a in ("--set", o)], "--no-minimap"],
+                            env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    steps = out / "trials" / "P09-baseline" / "steps.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (steps.exists() and len(steps.read_text().splitlines()) > 20):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1
+    meta = json.loads((out / "trials" / "P09-baseline" / "meta.json").read_text())
+    assert meta["status"] == "aborted" and meta["end_reason"] == "SIGTERM"
+    assert "P09 baseline: aborted (SIGTERM)" in err
+
+
+# ------------------------------------------------------------------------------------ 3. crashes
+CRASH = {"scenario": "envs/highway-trial.toml", "seed": 4, "duration_s": 2.4,
+         "keys_from": None}  # this seed's traffic hits the ego at 1.7 s under the script below (15 Hz)
+CRASH_SCRIPT = "0.2 down UP\n1.0 up UP\n1.2 down LEFT\n1.3 up LEFT\n1.6 down DOWN\n2.0 up DOWN\n"
+
+
+def _crash_run(tmp_path, on_crash, duration_s, frames=None):
+    opts = _opts(tmp_path, **{**CRASH, "keys_from": KeyScript.parse(CRASH_SCRIPT), "duration_s": duration_s,
+                              "on_crash": on_crash, "screenshot_every_s": 0.1})
+    lines = []
+    result = run_drive(opts, on_frame=None if frames is None else frames.append, say=lines.append)
+    return result, load_trial(result["directory"]), lines
+
+
+def test_a_crash_under_end_is_shown_and_flagged_not_completed(tmp_path):
+    frames = []
+    t0 = time.monotonic()
+    result, trial, lines = _crash_run(tmp_path, "end", 2.4, frames)
+    assert result["status"] == "ended_by_collision" and result["collisions"] == 1
+    meta = trial.meta
+    assert meta["status"] == "ended_by_collision" and meta["cut_short"] is True and meta["end_reason"] == "collision"
+    assert meta["collision"]["count"] == 1 and meta["collision"]["policy"] == "end"
+    t_crash = meta["collision"]["t_s"][0]
+    assert t_crash == pytest.approx(trial.steps["t_s"].max()) and t_crash < 2.4
+    assert [e["t_s"] for e in trial.collisions] == [pytest.approx(t_crash)]
+    banner = [f for f in frames if (f[int(f.shape[0] * 0.22) + 2] == (200, 20, 20)).all(axis=-1).mean() > 0.5]
+    assert len(banner) >= 20  # the banner stayed up after the end (at up to 60 frames/s)
+    assert time.monotonic() - t0 > t_crash + CRASH_BANNER_S - 0.2
+    assert "1 crash," in lines[0] and "ended_by_collision" in lines[0]
+    # the report takes it as data, flagged: cut short by a collision, never silently paired
+    assert check_trial(trial) is None
+    metrics = trial.metrics()
+    assert metrics["cut_short"] is True or metrics["cut_short"] == 1
+
+
+def test_a_crash_under_continue_puts_the_ego_back_and_counts_it(tmp_path):
+    result, trial, _ = _crash_run(tmp_path, "continue", 4.0)
+    meta = trial.meta
+    assert result["status"] == "completed" and meta["status"] == "completed" and meta["cut_short"] is False
+    n = meta["collision"]["count"]
+    assert n >= 1 and n == len(trial.collisions) and meta["collision"]["policy"] == "continue"
+    resets = [e for e in trial.events if e["kind"] == "ego_reset"]
+    assert len(resets) == n and resets[0]["t_s"] == pytest.approx(meta["collision"]["t_s"][0])
+    s = trial.steps.set_index("t_s")
+    assert s.index.max() == pytest.approx(4.0)  # the whole trial
+    after = s.loc[resets[0]["t_s"] + 0.01:resets[0]["t_s"] + 0.5]
+    assert not after["crashed"].any()
+    assert after["x_m"].iloc[0] == pytest.approx(resets[0]["x_m"], abs=3.0)
+    assert after["speed_mps"].iloc[0] == pytest.approx(resets[0]["speed_mps"], abs=1.0)
+    gap = after["gap_m"].iloc[0]
+    assert not gap < max(30.0, 2.0 * resets[0]["speed_mps"]) - 3.0  # a clear gap ahead (NaN: no leader)
+
+
+def test_the_crash_layer_flashes_red_then_shows_the_banner_then_nothing():
+    img = np.full((360, 640, 3), 100, np.uint8)
+    first, later, gone = crash_layer(img, 0.0), crash_layer(img, 1.0), crash_layer(img, CRASH_BANNER_S + 0.01)
+    assert first[5, 5, 0] > 150 and first[5, 5, 1] < 80  # red tint at the crash: 100 -> 0.5 * 100 + 0.5 * 255
+    assert tuple(later[5, 5]) == (100, 100, 100)  # the flash faded after 0.5 s
+    assert tuple(later[int(360 * 0.22) + 2, 5]) == (200, 20, 20)  # the banner is still up
+    assert gone is img and tuple(img[5, 5]) == (100, 100, 100)
+
+
+def test_the_beep_is_made_for_the_mixer_format_and_is_silent_without_a_device(monkeypatch):
+    s = beep_samples(44100, -16, 2, 880.0, 0.35)
+    assert s.shape == (15435, 2) and s.dtype == np.int16 and s[:, 0].tolist() == s[:, 1].tolist()
+    assert 0.39 * 32767 < np.abs(s).max() <= 0.4 * 32767 + 1 and s[0, 0] == 0
+    assert beep_samples(22050, 32, 1).dtype == np.float32
+    with pytest.raises(ValueError, match="sample format"):
+        beep_samples(44100, 24, 1)
+    pygame.mixer.quit()
+    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
+    try:
+        beep = drive.CrashBeep()
+        assert beep.sound is not None and beep.play()
+    finally:
+        pygame.mixer.quit()
+    monkeypatch.setenv("SDL_AUDIODRIVER", "nosuchdriver")
+    silent = drive.CrashBeep()
+    assert silent.sound is None and silent.play() is False
+    assert drive.CrashBeep(enabled=False).sound is None
+
+
+def test_a_bad_crash_policy_is_one_line(tmp_path, capsys):
+    with pytest.raises(ConfigError, match="--on-crash must be one of end, continue"):
+        run_drive(_opts(tmp_path, on_crash="stop"))
+    with pytest.raises(SystemExit, match="2"):
+        main(["drive", "--participant", "P01", "--condition", "adas", "--out", str(tmp_path / "s"), "--on-crash", "stop"])
+    assert "--on-crash" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------ 4. screens
+@pytest.mark.parametrize("size", [(480, 270), (640, 360), (1920, 1080)])
+def test_the_quit_question_and_the_pause_text_do_not_overlap(size):
+    w, h = size
+    img = np.zeros((h, w, 3), np.uint8)
+    rects = dialog(img, QUIT_LINES)
+    assert len(rects) == 3
+    for i, a in enumerate(rects):
+        assert 0 <= a[0] < a[2] <= w and 0 <= a[1] < a[3] <= h
+        for b in rects[i + 1:]:
+            assert a[3] <= b[1] or b[3] <= a[1] or a[2] <= b[0] or b[2] <= a[0], (a, b)
+
+
+def test_the_quit_question_replaces_the_pause_text(monkeypatch):
+    texts = []
+    real = drive._text
+    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real(img, text, *a, **k)))
+    snap = drive._Snapshot(np.zeros((270, 480, 3), np.uint8), None, Hud(90, 2, 3, 30, "Trial 1", True), None, 3)
+    trial = types.SimpleNamespace(paused=True, confirm_quit=False)
+    drive._window_frame(trial, snap)
+    assert "PAUSED" in texts and "Quit the trial?" not in texts
+    texts.clear()
+    trial.confirm_quit = True
+    drive._window_frame(trial, snap)
+    assert "Quit the trial?" in texts and "PAUSED" not in texts
+
+
+def test_practice_shows_practice_and_the_label_is_what_the_caller_says(tmp_path):
+    assert DriveOptions("P1", "adas", tmp_path).label == "Trial"
+    assert DriveOptions("P1", "adas", tmp_path, practice=True).label == "Practice"
+    assert DriveOptions("P1", "sham", tmp_path, display_label="Trial 3").label == "Trial 3"
+
+
+# ------------------------------------------------------------------------------------ 5. view
+def test_size_is_validated_in_one_line(tmp_path, capsys):
+    assert parse_size("1280x720") == (1280, 720) and parse_size(" 800X600 ") == (800, 600)
+    for bad in ("1280", "10x10", "axb", "99999x1", "1280x720x3", ""):
+        with pytest.raises(ConfigError, match=r"--size must be WIDTHxHEIGHT in pixels, width 160\.\.4096"):
+            parse_size(bad)
+    with pytest.raises(SystemExit, match="2"):
+        main(["drive", "--participant", "P01", "--condition", "adas", "--out", str(tmp_path / "s"), "--size", "big"])
+    err = capsys.readouterr().err
+    assert "--size must be WIDTHxHEIGHT" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_frame_is_scaled_to_a_resized_window_and_to_fullscreen():
+    img = np.full((180, 320, 3), (10, 200, 30), np.uint8)
+    try:
+        win = _Window((320, 180))
+        assert pygame.display.get_caption()[0] == "dt-highway"
+        pygame.display.set_mode((640, 480), pygame.RESIZABLE)  # as the window manager would resize it
+        pygame.event.post(pygame.event.Event(pygame.WINDOWSIZECHANGED, x=640, y=480))
+        win.events()
+        win.show(img)
+        screen = pygame.surfarray.array3d(pygame.display.get_surface()).transpose(1, 0, 2)
+        assert screen.shape == (480, 640, 3)
+        # 320x180 times 2 = 640x360, centred: black bars of 60 px above and below
+        assert tuple(screen[59, 320]) == (0, 0, 0) and tuple(screen[60, 320]) == (10, 200, 30)
+        assert tuple(screen[419, 320]) == (10, 200, 30) and tuple(screen[420, 320]) == (0, 0, 0)
+    finally:
+        pygame.quit()
+    try:
+        win = _Window((320, 180), fullscreen=True)
+        fw, fh = pygame.display.get_surface().get_size()
+        win.show(img)
+        screen = pygame.surfarray.array3d(pygame.display.get_surface()).transpose(1, 0, 2)
+        k = min(fw / 320, fh / 180)
+        top = (fh - round(180 * k)) // 2
+        assert tuple(screen[top + 2, fw // 2]) == (10, 200, 30) and (top == 0 or tuple(screen[top - 2, fw // 2]) == (0, 0, 0))
+    finally:
+        pygame.quit()
+
+
+def test_trials_simulate_at_30_hz_unless_told_otherwise(tmp_path):
+    cfg, overrides, f = _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml"))
+    assert f == 30 and cfg.highway.simulation_frequency == 30 and cfg.highway.policy_frequency == 30
+    assert overrides[0] == "highway.simulation_frequency=30"
+    cfg, _, f = _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml",
+                                           overrides=["highway.simulation_frequency=15"], size=(1280, 720)))
+    assert f == 15 and cfg.highway.policy_frequency == 15  # the caller's --set wins
+    assert (cfg.camera.width_px, cfg.camera.height_px) == (1280, 720)
+    cfg, _, f = _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml", simulation_hz=None))
+    assert f == 15  # the scenario's
+
+
+def test_the_mirror_hook_draws_what_render_mirrors_returns(tmp_path, monkeypatch):
+    calls = []
+
+    def render_mirrors(env, size):
+        calls.append(size)
+        return np.full((size[1], size[0], 3), (255, 0, 255), np.uint8)
+
+    fake = types.ModuleType(drive.MIRROR_MODULE)
+    fake.render_mirrors = render_mirrors
+    fake.__spec__ = __import__("importlib").machinery.ModuleSpec(drive.MIRROR_MODULE, None)
+    monkeypatch.setitem(sys.modules, drive.MIRROR_MODULE, fake)
+    result = run_drive(_opts(tmp_path, keys_from=KeyScript([]), duration_s=0.5, mirrors=True, screenshot_every_s=0.5),
+                       say=lambda s: None)
+    mw, mh = round(480 * MIRROR_FRACTION[0]), round(270 * MIRROR_FRACTION[1])
+    assert calls and set(calls) == {(mw, mh)}
+    from PIL import Image
+
+    last = sorted((Path(result["directory"]) / "screenshots").iterdir())[-1]  # t0000.53s.png: the step after 0.5 s
+    shot = np.asarray(Image.open(last).convert("RGB"))
+    magenta = (shot == (255, 0, 255)).all(axis=-1)
+    ys, xs = np.nonzero(magenta)
+    assert magenta.sum() >= 0.9 * mw * mh and abs((xs.min() + xs.max()) / 2 - 240) <= 2 and ys.min() < 20
+    monkeypatch.delitem(sys.modules, drive.MIRROR_MODULE)
+    monkeypatch.setattr(drive.importlib.util, "find_spec", lambda name: None)
+    assert drive._mirror_renderer() is None  # no module: no mirror, no error
+
+
+def test_compose_frame_never_draws_the_condition(monkeypatch):
+    texts = []
+    real = drive._text
+    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real(img, text, *a, **k)))
+    compose_frame(np.zeros((270, 480, 3), np.uint8), None, Hud(100.0, 1, 3, 12.0, "Trial 1"))
+    assert "Trial 1" in texts and not any("adas" in t.lower() or "baseline" in t.lower() for t in texts)

@@ -1,0 +1,141 @@
+"""Replay of a logged keyboard trial from its seed, config and logged actions (hmi/replay.py, dt-highway replay)."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dt_highway.cli import main
+from dt_highway.hmi.replay import ReplayError, read_logged_trial, replay_trial
+from dt_highway.metrics.trial_log import load_trial
+
+FAST = ["--set", "highway.vehicles_count=16", "--set", "twin.preroll_s=20", "--set", "camera.width_px=480",
+        "--set", "camera.height_px=270"]
+SCRIPT = "0.2 down UP\n1.0 up UP\n1.2 down LEFT\n1.3 up LEFT\n1.6 down DOWN\n2.0 up DOWN\n"
+
+
+@pytest.fixture(scope="module")
+def trial_dir(tmp_path_factory):
+    """One short scripted keyboard trial (adas: the overlay's marks are in the pictures)."""
+    tmp = tmp_path_factory.mktemp("replay")
+    keys = tmp / "keys.txt"
+    keys.write_text(SCRIPT)
+    assert main(["drive", "--participant", "P01", "--condition", "adas", "--duration", "2.4", "--out", str(tmp / "s"),
+                 "--keys-from", str(keys), "--screenshot-every", "1", "--seed", "3", *FAST]) == 0
+    return tmp / "s" / "trials" / "P01-adas"
+
+
+def test_a_replay_drives_the_same_path_and_shows_what_the_participant_saw(trial_dir, tmp_path):
+    logged = load_trial(trial_dir)
+    assert logged.meta["status"] == "completed"
+    lane_changes = [e for e in logged.events if e["kind"] == "lane_change"]
+    assert lane_changes  # the script's LEFT tap changed lanes: the path is not just straight on
+    seen: list[float] = []
+    result = replay_trial(trial_dir, frames_out=tmp_path / "frames", every_s=1.0, on_frame=lambda t, img: seen.append(t))
+    assert result.followed_log and result.diverged_at_s is None and result.max_deviation_m == 0.0
+    assert result.steps == len(logged.steps)
+    # the ego's positions after every step, equal to the log's to the last bit
+    assert np.array_equal(result.positions_m, logged.steps[["x_m", "y_m"]].to_numpy())
+    names = sorted(p.name for p in (tmp_path / "frames").iterdir())
+    assert names == ["t0000.00s.png", "t0001.00s.png", "t0002.00s.png"] and result.frames == 3
+    assert len(seen) == result.steps + 1  # every step's picture to the callback, and t = 0
+    # the replayed picture is the trial's screenshot at the same time, but for the replay's banner (top right)
+    for name in ("t0001.00s.png", "t0002.00s.png"):
+        shot = np.asarray(Image.open(trial_dir / "screenshots" / name).convert("RGB"))
+        frame = np.asarray(Image.open(tmp_path / "frames" / name).convert("RGB"))
+        assert shot.shape == frame.shape == (270, 480, 3)
+        diff = (shot != frame).any(axis=-1)
+        rows, cols = np.nonzero(diff)
+        assert len(rows) > 100  # the banner is there
+        assert rows.max() < 40 and cols.min() > 480 / 2 - 40, (name, rows.max(), cols.min())
+
+
+def test_the_cli_replays_to_frames_and_says_the_path_was_the_logged_one(trial_dir, tmp_path, capsys):
+    n = len(load_trial(trial_dir).steps)  # 2.4 s at the trials' simulation frequency
+    assert main(["replay", str(trial_dir), "--frames-out", str(tmp_path / "f"), "--every-s", "2"]) == 0
+    out = capsys.readouterr().out
+    assert f"replayed {n} steps" in out and "2 frames" in out and "followed the log" in out
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == ["t0000.00s.png", "t0002.00s.png"]
+
+
+def test_a_log_the_replay_does_not_follow_is_reported(trial_dir, tmp_path, capsys):
+    bad = tmp_path / "P01-adas"
+    bad.mkdir()
+    for name in ("meta.json", "events.jsonl"):
+        (bad / name).write_bytes((trial_dir / name).read_bytes())
+    lines = (trial_dir / "steps.csv").read_text().splitlines(keepends=True)
+    cols = lines[0].strip().split(",")
+    t_s = load_trial(trial_dir).steps["t_s"].to_numpy()
+    row = lines[21].split(",")  # the 21st step's action (line 1 is the header)
+    row[cols.index("action_accel_mps2")] = "-7.0"  # a hard brake the participant never made
+    lines[21] = ",".join(row)
+    (bad / "steps.csv").write_text("".join(lines))
+    result = replay_trial(bad)
+    # the brake changes the speed in that step, the position from the next one (22nd)
+    assert not result.followed_log and result.diverged_at_s == pytest.approx(t_s[21])
+    assert result.max_deviation_m > 0.01
+    assert main(["replay", str(bad), "--frames-out", str(tmp_path / "f")]) == 1
+    assert f"left the logged path at t = {t_s[21]:.2f} s" in capsys.readouterr().out
+
+
+def _one_line_error(capsys, args: list[str]) -> str:
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("dt-highway replay: error:"), err
+    return err
+
+
+def test_bad_trial_dirs_are_one_line_errors(trial_dir, tmp_path, capsys):
+    assert "not a trial directory" in _one_line_error(capsys, ["replay", str(tmp_path / "nowhere")])
+    (tmp_path / "empty").mkdir()
+    assert "no meta.json" in _one_line_error(capsys, ["replay", str(tmp_path / "empty")])
+    d = tmp_path / "scripted"
+    d.mkdir()
+    meta = json.loads((trial_dir / "meta.json").read_text())
+    (d / "meta.json").write_text(json.dumps({**meta, "driver": "idm"}))
+    assert "replay plays keyboard trials (this one's driver is 'idm')" in _one_line_error(capsys, ["replay", str(d)])
+    (d / "meta.json").write_text(json.dumps(meta))
+    assert "steps.csv: missing" in _one_line_error(capsys, ["replay", str(d)])
+    (d / "steps.csv").write_text("t_s,x_m,y_m\n0.1,1,2\n")
+    assert "lacks column(s) action_accel_mps2, action_lane, keys" in _one_line_error(capsys, ["replay", str(d)])
+    (d / "meta.json").write_text("{not json")
+    assert "is not valid JSON" in _one_line_error(capsys, ["replay", str(d)])
+    assert "--every-s S needs --frames-out DIR" in _one_line_error(capsys, ["replay", str(trial_dir), "--every-s", "1"])
+    with pytest.raises(ReplayError, match="no meta.json"):
+        read_logged_trial(tmp_path / "empty")
+
+
+def test_the_window_replay_runs_and_esc_stops_it(trial_dir):
+    import pygame
+
+    def esc_after_1s(t_s: float, img: np.ndarray) -> None:
+        if t_s >= 1.0:
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE))
+
+    n = len(load_trial(trial_dir).steps)
+    whole = replay_trial(trial_dir, window=True, speed=20.0)
+    assert whole.followed_log and whole.steps == n and not whole.stopped
+    part = replay_trial(trial_dir, window=True, speed=20.0, on_frame=esc_after_1s)
+    hz = load_trial(trial_dir).meta["simulation_frequency_hz"]
+    # stopped at the first picture at or after 1 s: that step is the last replayed; no divergence for that
+    assert part.stopped and part.followed_log and part.steps == round(1.0 * hz)
+
+
+def test_a_trial_that_goes_on_after_crashes_replays_through_the_ego_resets(tmp_path):
+    from dt_highway.hmi.drive import DriveOptions, run_drive
+    from dt_highway.hmi.keys import KeyScript
+
+    # throttle held, lane changes left and right every 1.3 s in the near-miss world: the ego rams a car
+    taps = [f"{0.5 + 1.3 * k:.2f} {a} {'LEFT' if k % 2 == 0 else 'RIGHT'}" for k in range(7) for a in ("down", "up")]
+    script = KeyScript.parse("0.0 down UP\n" + "\n".join(sorted(taps, key=lambda x: float(x.split()[0]))) + "\n")
+    opts = DriveOptions(participant="P09", condition="baseline", out=tmp_path, duration_s=9.0, seed=3,
+                        scenario="envs/highway-trial.toml", keys_from=script, on_crash="continue", minimap=False,
+                        overrides=["twin.preroll_s=20", "camera.width_px=320", "camera.height_px=180"])
+    run_drive(opts)
+    trial = load_trial(tmp_path / "trials" / "P09-baseline")
+    resets = [e for e in trial.events if e["kind"] == "ego_reset"]
+    assert resets, "the scripted drive no longer crashes: pick another seed"  # the case under test
+    result = replay_trial(trial.path)
+    assert result.followed_log and result.steps == len(trial.steps)
+    assert np.array_equal(result.positions_m, trial.steps[["x_m", "y_m"]].to_numpy())
