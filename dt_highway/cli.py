@@ -48,6 +48,7 @@ from dt_highway.evaluation.intent import (
 )
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
 from dt_highway.evaluation.rl import evaluate as evaluate_driver
 from dt_highway.evaluation.tagger_train import train_tagger, training_steps
 from dt_highway.evaluation.twin import episode_steps, evaluate_twin
@@ -754,6 +755,29 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_rl_compare(args: argparse.Namespace) -> int:
+    """Rows of driver x condition (x ablation) on the same held-out seeds, with paired tests (issue 22)."""
+    rows = parse_rows(args.rows)  # a bad row: one line, before any env
+    scenario = args.scenario or COMPARE_SCENARIO
+    load_config(scenario, args.overrides)
+    bars: list[tqdm] = []  # the bar appears once every row's driver and env were accepted
+
+    def progress(n: int) -> None:
+        if not bars:
+            bars.append(_progress(args.episodes * len(rows), "rl-compare", args.quiet, unit="episode"))
+        bars[0].update(n)
+
+    try:
+        result = rl_compare(rows, args.episodes, args.seed, scenario, tuple(args.overrides), args.workers, progress)
+    finally:
+        for bar in bars:
+            bar.close()
+    paths = write_compare(result, args.out)
+    print(markdown_table(result), end="")
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+    return 0
+
+
 def _score(text: str) -> float:
     try:
         value = float(text)
@@ -1016,6 +1040,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", dest="out_json", metavar="FILE", help="also write the JSON result (every episode) to FILE")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("rl-compare", help="drivers x conditions (x ablations) on the same held-out seeds, paired tests")
+    _add_config_args(p, COMPARE_SCENARIO)
+    p.add_argument("--rows", required=True, metavar="DRIVER@CONDITION[:ABLATION],...",
+                   help="comma-separated rows, e.g. ppo-safe-adas.zip@adas-threat,ppo-safe-adas.zip@sham-threat,"
+                        "ppo-safe-adas.zip@adas-threat:zero-marks,ppo-safe-baseline.zip@baseline,idm.toml@baseline "
+                        "(bare names are looked for in agents/; ablation: zero-marks)")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=50, help="episodes per row (default 50)")
+    p.add_argument("--seed", type=_seed, default=COMPARE_SEED,
+                   help=f"seed of the first episode; episode i uses seed + i in every row (default {COMPARE_SEED}: held out)")
+    p.add_argument("--workers", type=_positive(int, "--workers"), default=1, help="parallel episodes (default 1)")
+    p.add_argument("--out", default="runs/rl-compare",
+                   help="folder for compare.json, compare.md and episodes.csv (default runs/rl-compare)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_rl_compare)
 
     p = sub.add_parser("calibrate", help="a scenario knob's baseline figures (cut-in TTC, collisions) per value and driver")
     _add_config_args(p, STUDY_SCENARIO)

@@ -29,6 +29,12 @@ from dt_highway.rl.files import FORMAT, sha256, sidecar_path
 
 TRAINED_SETTINGS = ("lanes_count", "policy_frequency", "simulation_frequency")
 """``highway`` settings a policy must drive with as it was trained with them"""
+KINEMATICS_FEATURES = ("presence", "x", "y", "vx", "vy")
+"""highway-env's Kinematics columns when the observation names none (its ``features`` default)"""
+OVERLAY_FEATURES = ("marked",)
+"""The columns an ``OverlayKinematics`` observation appends from the overlay, last (the env's ``EXTRA_FEATURES``)"""
+THREAT_FEATURES = ("cut_in_warned", "side")
+"""The threat cue's columns after them with ``threat = true`` (the env's ``THREAT_FEATURES``)"""
 
 
 class PolicyDriver(Driver):
@@ -60,6 +66,33 @@ class PolicyDriver(Driver):
                                {key: value for key, value in trained.items() if value != {}}, model.observation_space)
         self.senses = SenseRequest(surroundings=assisted, entering=assisted, observation=spec)
         self.menu: DiscreteMenu | None = None
+        self.overlay_features: tuple[str, ...] = ()
+        """its observation's columns that come from the overlay (none without marks)"""
+        self.features: tuple[str, ...] = ()
+        """its observation's column names (Kinematics-type observations; empty for the camera)"""
+        if kind in ("Kinematics", "OverlayKinematics"):
+            self.overlay_features = (OVERLAY_FEATURES + (THREAT_FEATURES if obs_cfg.get("threat") else ())
+                                     if kind == "OverlayKinematics" else ())
+            self.features = tuple(obs_cfg.get("features") or KINEMATICS_FEATURES) + self.overlay_features
+        self.zeroed: tuple[int, ...] = ()
+        """indices of the observation's columns set to 0 before the policy sees them (:meth:`zero_columns`)"""
+
+    def zero_columns(self, names: tuple[str, ...] | list[str]) -> None:
+        """Zero these columns of every observation before the policy sees it (an ablation: e.g. the
+        overlay's columns, :attr:`overlay_features`, while the env runs the same condition).
+
+        :param names: column names of :attr:`features`; empty: zero nothing
+        :raises ConfigError: one line, on a name its observation does not have
+        """
+        unknown = [n for n in names if n not in self.features]
+        if unknown:
+            raise ConfigError(f"policy {self.name}: no observation column {', '.join(unknown)} to zero "
+                              f"(its columns: {', '.join(self.features) or 'none, a camera observation'})")
+        shape: tuple[int, ...] = tuple(getattr(self.model.observation_space, "shape", None) or ())
+        if names and (len(shape) != 2 or shape[-1] != len(self.features)):
+            raise ConfigError(f"policy {self.name}: its observation {shape} does not have the columns "
+                              f"{', '.join(self.features)}: cannot zero {', '.join(names)}")
+        self.zeroed = tuple(self.features.index(n) for n in names)
 
     def params(self) -> dict[str, Any]:
         return {"algorithm": self.config.algorithm, "observation": self.config.observation, "action": self.config.action,
@@ -101,7 +134,11 @@ class PolicyDriver(Driver):
         assert self.menu is not None
         if perception.observation is None:
             raise ValueError(f"policy {self.name} acts on its observation: perceive with its senses (a DriverSeat)")
-        action, _ = self.model.predict(perception.observation, deterministic=True)
+        observation = perception.observation
+        if self.zeroed:
+            observation = np.array(observation, copy=True)
+            observation[..., list(self.zeroed)] = 0
+        action, _ = self.model.predict(observation, deterministic=True)
         return self.menu.action(self.menu.choice(action), perception)
 
 
