@@ -53,7 +53,7 @@ from dt_highway.evaluation.rl import evaluate as evaluate_driver
 from dt_highway.evaluation.tagger_train import train_tagger, training_steps
 from dt_highway.evaluation.twin import episode_steps, evaluate_twin
 from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol
-from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, parse_size, run_drive
+from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, open_wheel, parse_size, run_drive
 from dt_highway.hmi.keys import KeyScript, KeyScriptError
 from dt_highway.hmi.replay import replay_trial
 from dt_highway.hmi.session import condition_order, run_session
@@ -106,6 +106,22 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
                         "its lane with a clear gap and the trial goes on, crashes counted (default end)")
     p.add_argument("--mirrors", action="store_true", help="draw the rear-view mirror (when dt_highway.camera.mirror exists)")
     p.add_argument("--no-sound", action="store_true", help="no beep on a crash")
+    p.add_argument("--wheel", nargs="?", const=0, type=_wheel_index, metavar="INDEX",
+                   help="drive with a wheel and pedals (or a gamepad) through pygame's joystick API: its index among "
+                        "those connected (default 0); P, M and Esc stay on the keyboard")
+    p.add_argument("--wheel-calibration", metavar="FILE",
+                   help="the wheel's calibration (default <out>/wheel-calibration.json); when missing, the calibration "
+                        "screen runs first and saves it there")
+
+
+def _wheel_index(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--wheel must be a device index >= 0 (got '{text}')") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--wheel must be a device index >= 0 (got {text})")
+    return value
 
 
 def _window_size(text: str) -> tuple[int, int]:
@@ -393,10 +409,11 @@ def _interrupted(specs: Sequence[Any], out: str) -> None:
 
 def _print_summary(path: Path) -> None:
     s = json.loads(path.read_text())
+    width = max((len(cond) for cond in s["conditions"]), default=8)  # the columns line up (adas-threat: 11)
     for cond, c in s["conditions"].items():
         sv, ttc = c["speed_variance_kmh2"], c["ttc_mean_s"]
         f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
-        print(f"  {cond:8s} n={c['n']:3d}  speed variance {f(sv['mean'])} (km/h)^2  mean TTC {f(ttc['mean'])} s  "
+        print(f"  {cond:{width}s} n={c['n']:3d}  speed variance {f(sv['mean'])} (km/h)^2  mean TTC {f(ttc['mean'])} s  "
               f"collisions {c['collisions']}  cut-ins {c['cut_ins']} ({c['cut_ins_marked_in_time']} marked in time)")
 
 
@@ -417,19 +434,23 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
         raise ConfigError(str(err)) from None
     if args.screenshots and not args.screenshot_every:
         raise ConfigError("--screenshots DIR needs --screenshot-every S")
+    if args.wheel_calibration and args.wheel is None:
+        raise ConfigError("--wheel-calibration FILE needs --wheel")
     return DriveOptions(
         participant=_participant(args.participant), condition=condition, out=Path(args.out),
         practice=getattr(args, "practice", False), scenario=find_file_or_default(args.scenario),
         overrides=list(args.overrides), duration_s=args.duration, seed=args.seed, keys_from=script,
         screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
         fps=args.fps, minimap=not args.no_minimap, steering=args.steering, size=args.size, fullscreen=args.fullscreen,
-        on_crash=args.on_crash, mirrors=args.mirrors, sound=not args.no_sound)
+        on_crash=args.on_crash, mirrors=args.mirrors, sound=not args.no_sound, wheel=args.wheel,
+        wheel_calibration=Path(args.wheel_calibration) if args.wheel_calibration else None)
 
 
 def cmd_session(args: argparse.Namespace) -> int:
     """A participant's session: briefing, practice in every condition, the conditions counterbalanced
     with questionnaires after each, an end screen."""
     base = _drive_options(args, "baseline")
+    open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     order = condition_order(base.participant, conditions)
     protocol = load_protocol(args.protocol)

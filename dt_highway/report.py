@@ -104,7 +104,7 @@ DEFINITIONS = {
     "conflicts_2d_per_h": f"onsets of 2-D TTC below {CONFLICT_TTC_S:g} s per hour of trial [1/h]",
     "speed_mean_kmh": "mean ego speed [km/h]",
     "headway_mean_s": "mean time headway gap / ego speed, with a leader [s]",
-    "drac_max_mps2": "maximum deceleration rate to avoid the crash dv^2 / (2 gap) [m/s^2]",
+    "drac_max_mps2": "maximum deceleration rate to avoid the crash dv^2 / (2 gap), capped at 10 m/s^2 (about 1 g) [m/s^2]",
     "hard_brakes": "onsets of ego deceleration >= 3 m/s^2 [-]",
     "cut_in_ttc_min_s": f"smallest of the cut-ins' minimum TTC to the cutting vehicle, capped at {TTC_CAP_S:g} s [s]",
     "pet_min_s": (
@@ -149,7 +149,7 @@ METRIC_INFO: dict[str, tuple[str, str, float, float]] = {
     "conflicts_2d_per_h": (f"Conflicts (2-D TTC < {CONFLICT_TTC_S:g} s)", "1/h", 0.0, _INF),
     "speed_mean_kmh": ("Mean speed", "km/h", 0.0, _INF),
     "headway_mean_s": ("Mean time headway", "s", 0.0, _INF),
-    "drac_max_mps2": ("Maximum DRAC", "m/s^2", 0.0, _INF),
+    "drac_max_mps2": ("Maximum DRAC", "m/s^2", 0.0, 10.0),
     "hard_brakes": ("Hard brakes", "count", 0.0, _INF),
     "cut_in_ttc_min_s": ("Minimum TTC to a cutting-in car", "s", 0.0, TTC_CAP_S),
     "pet_min_s": ("Minimum PET of the cut-ins", "s", 0.0, TTC_CAP_S),

@@ -436,3 +436,106 @@ def test_compose_frame_never_draws_the_condition(monkeypatch):
     monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real(img, text, *a, **k)))
     compose_frame(np.zeros((270, 480, 3), np.uint8), None, Hud(100.0, 1, 3, 12.0, "Trial 1"))
     assert "Trial 1" in texts and not any("adas" in t.lower() or "baseline" in t.lower() for t in texts)
+
+
+# ------------------------------------------------------------------------------------------ a wheel (issue 20)
+WHEEL_CAL = {"device": "test wheel",  # throttle resting at -1 (pressed: +1), brake resting at +1 (pressed: -1)
+             "steer": {"axis": 0, "min": -1.0, "centre": 0.0, "max": 1.0, "deadzone": 0.0},
+             "throttle": {"axis": 1, "min": -1.0, "centre": -1.0, "max": 1.0, "deadzone": 0.03},
+             "brake": {"axis": 2, "min": -1.0, "centre": 1.0, "max": 1.0, "deadzone": 0.03}}
+
+
+@pytest.fixture
+def virtual_wheel():
+    from dt_highway.hmi.joystick import VirtualJoystick
+
+    pygame.display.init()
+    pygame.joystick.init()
+    dev = VirtualJoystick(n_axes=3)
+    for axis, value in enumerate((0.0, -1.0, 1.0)):  # at rest
+        dev.set_axis(axis, value)
+    yield dev
+    dev.close()
+    pygame.quit()
+
+
+def test_a_wheel_drives_the_trial_throttle_held_and_one_lane_change_per_turn(tmp_path, virtual_wheel):
+    cal = tmp_path / "wheel.json"
+    cal.write_text(json.dumps(WHEEL_CAL))
+    virtual_wheel.set_axis(1, 1.0)  # full throttle, held from before the start
+    frames = []
+
+    def on_frame(_img):
+        frames.append(1)
+        if len(frames) == 20:  # the wheel turned 0.7 to the right (past 0.5) and held there
+            virtual_wheel.set_axis(0, 0.7)
+
+    opts = _opts(tmp_path, "P01", "baseline", duration_s=3.0, keys_from=KeyScript([]), wheel=virtual_wheel.index,
+                 wheel_calibration=cal)
+    result = run_drive(opts, on_frame=on_frame, say=lambda _: None)
+    assert result["status"] == "completed"
+    trial = load_trial(result["directory"])
+    steps = trial.steps.iloc[1:]  # row 0: the state at t = 0, before any action
+    # full throttle: coast -0.3 + 1 * (2.5 + 0.3) = 2.5 m/s^2 at every step (SDL keeps 16 bits: within 1e-3)
+    assert np.allclose(steps["action_accel_mps2"], 2.5, atol=1e-3)
+    assert steps["speed_mps"].iloc[-1] > trial.steps["speed_mps"].iloc[0] + 4.0
+    # one lane request (to the right) for one turn held past the threshold
+    assert list(steps["action_lane"][steps["action_lane"] != 0]) == [1.0]
+    assert "wheel:steer=+0.700,throttle=1.000,brake=0.000" in set(steps["keys"])
+    assert steps["keys"].iloc[0] == "wheel:steer=+0.000,throttle=1.000,brake=0.000"
+    lane_changes = [e for e in trial.events if e["kind"] == "lane_change"]
+    assert len(lane_changes) == 1 and lane_changes[0]["to_lane"] == lane_changes[0]["from_lane"] + 1
+    assert trial.meta["wheel"]["calibration"]["throttle"]["axis"] == 1
+    assert trial.meta["driver_params"]["wheel"] == virtual_wheel.index
+
+
+def test_a_missing_wheel_calibration_runs_the_calibration_screen_and_saves_it(tmp_path, virtual_wheel, monkeypatch):
+    from dt_highway.hmi.joystick import Calibration
+
+    seen = []
+
+    def fake_screen(device, save_to=None, window=None, **_):  # what a person would have made on the screen
+        seen.append((device.get_numaxes(), window is not None))
+        cal = Calibration.model_validate(WHEEL_CAL)
+        cal.save(save_to)
+        return cal
+
+    monkeypatch.setattr(drive, "calibration_screen", fake_screen)
+    cal = tmp_path / "cal" / "wheel.json"
+    opts = _opts(tmp_path, "P01", "baseline", duration_s=0.5, keys_from=KeyScript([]), wheel=virtual_wheel.index,
+                 wheel_calibration=cal)
+    assert run_drive(opts, say=lambda _: None)["status"] == "completed"
+    assert seen == [(3, True)] and Calibration.load(cal).device == "test wheel"
+
+
+def test_a_wheel_that_is_not_there_is_one_line_naming_the_option(tmp_path, capsys):
+    rc = main(["drive", "--participant", "P01", "--condition", "baseline", "--out", str(tmp_path / "s"),
+               "--scenario", V1, "--duration", "1", "--keys-from", os.devnull, "--wheel", "7"])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and len(err.splitlines()) == 1
+    assert "--wheel 7: joystick 7 not found" in err
+    with pytest.raises(ConfigError, match="--wheel 7: joystick 7 not found"):
+        run_drive(_opts(tmp_path, keys_from=KeyScript([]), wheel=7), say=lambda _: None)
+    # a session: before its briefing (no window, no trial directory)
+    rc = main(["session", "--participant", "P01", "--out", str(tmp_path / "t"), "--keys-from", os.devnull, "--wheel", "7"])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and len(err.splitlines()) == 1 and "--wheel 7: joystick 7 not found" in err
+    assert not (tmp_path / "t" / "trials").exists()
+    # --wheel without an index: device 0; --wheel-calibration alone is refused
+    rc = main(["drive", "--participant", "P01", "--condition", "baseline", "--out", str(tmp_path / "u"),
+               "--keys-from", os.devnull, "--wheel-calibration", "w.json"])
+    assert rc != 0 and "--wheel-calibration FILE needs --wheel" in capsys.readouterr().err
+
+
+def test_a_key_script_file_may_press_keys_during_the_countdown(tmp_path):
+    # the DriveOptions docstring: "events at negative times are keys pressed during the countdown", in a file too
+    script = KeyScript.parse("-2.5 down UP   # held through the countdown\n-1 down LEFT\n-0.5 up LEFT\n0.3 up UP\n")
+    assert [e.t_s for e in script.events] == [-2.5, -1.0, -0.5, 0.3]
+    result = run_drive(_opts(tmp_path, "P01", "baseline", duration_s=1.0, keys_from=script), say=lambda s: None)
+    trial = load_trial(result["directory"])
+    # UP held at 0 s: pressed then (when: -2.5 s); LEFT pressed and released in the countdown: no lane change
+    assert _keys(trial) == [(0.0, "key_down", "UP"), (0.3, "key_up", "UP")]
+    assert next(e for e in trial.events if e["kind"] == "key_down")["pressed_at_s"] == -2.5
+    accel = trial.steps["action_accel_mps2"].to_numpy()
+    assert accel[0] == pytest.approx(-0.3 + 2.5 / 15)  # the throttle from the first step (15 Hz)
+    assert not (trial.steps["action_lane"] != 0).any()

@@ -32,7 +32,8 @@ def test_key_script_parses_and_replays_in_time_order():
 @pytest.mark.parametrize("text, message", [
     ("0.5 down", "expected 'TIME down|up KEY'"),
     ("soon down UP", "time must be a number"),
-    ("-1 down UP", "must be >= 0"),
+    ("-3.5 down UP", "keys.txt:1: time must be >= -3 s (before 0: the countdown) (got -3.5)"),
+    ("-1 down P", "only UP, DOWN, LEFT, RIGHT can be pressed before 0 s (the countdown; got P at -1 s)"),
     ("2 down UP\n1 up UP", "keys.txt:2: times must not go back"),
     ("1 hold UP", "action must be 'down' or 'up'"),
     ("1 down SPACE", "unknown key 'SPACE' (allowed: UP, DOWN, LEFT, RIGHT, P, ESC)"),

@@ -7,6 +7,7 @@ import pytest
 from PIL import Image
 
 from dt_highway.cli import main
+from dt_highway.hmi.drive import hud_band_height
 from dt_highway.hmi.replay import ReplayError, read_logged_trial, replay_trial
 from dt_highway.metrics.trial_log import load_trial
 
@@ -40,7 +41,9 @@ def test_a_replay_drives_the_same_path_and_shows_what_the_participant_saw(trial_
     names = sorted(p.name for p in (tmp_path / "frames").iterdir())
     assert names == ["t0000.00s.png", "t0001.00s.png", "t0002.00s.png"] and result.frames == 3
     assert len(seen) == result.steps + 1  # every step's picture to the callback, and t = 0
-    # the replayed picture is the trial's screenshot at the same time, but for the replay's banner (top right)
+    # the replayed picture is the trial's screenshot at the same time, but for the replay's banner (bottom left,
+    # above the HUD's band: the mirrors at the top stay clear)
+    band_min = hud_band_height((480, 270))
     for name in ("t0001.00s.png", "t0002.00s.png"):
         shot = np.asarray(Image.open(trial_dir / "screenshots" / name).convert("RGB"))
         frame = np.asarray(Image.open(tmp_path / "frames" / name).convert("RGB"))
@@ -48,7 +51,8 @@ def test_a_replay_drives_the_same_path_and_shows_what_the_participant_saw(trial_
         diff = (shot != frame).any(axis=-1)
         rows, cols = np.nonzero(diff)
         assert len(rows) > 100  # the banner is there
-        assert rows.max() < 40 and cols.min() > 480 / 2 - 40, (name, rows.max(), cols.min())
+        assert rows.min() > 270 / 2 and rows.max() < 270 - band_min and cols.max() < 480 * 0.6, \
+            (name, rows.min(), rows.max(), cols.max())
 
 
 def test_the_cli_replays_to_frames_and_says_the_path_was_the_logged_one(trial_dir, tmp_path, capsys):
@@ -139,3 +143,19 @@ def test_a_trial_that_goes_on_after_crashes_replays_through_the_ego_resets(tmp_p
     result = replay_trial(trial.path)
     assert result.followed_log and result.steps == len(trial.steps)
     assert np.array_equal(result.positions_m, trial.steps[["x_m", "y_m"]].to_numpy())
+
+
+def test_the_replay_banner_sits_bottom_left_above_the_hud_clear_of_the_mirrors():
+    from dt_highway.hmi.drive import MIRROR_FRACTION
+    from dt_highway.hmi.replay import _banner
+
+    h, w = 720, 1280
+    minimap = np.zeros((150, 600, 3), np.uint8)
+    band = hud_band_height((w, h), minimap)
+    assert band == max(110, int(150 * 460 / 600) + 32)  # the mini-map 0.36 * 1280 = 460 px wide, 16 px above and below
+    img = np.zeros((h, w, 3), np.uint8)
+    _banner(img, 12.5, "UP;LEFT", band)
+    ys, xs = np.nonzero(img.any(axis=2))
+    # above the HUD's band, in the left half, below the mirrors (top MIRROR_FRACTION[1] of the frame and their frame)
+    assert ys.max() < h - band and xs.max() < w // 2 and xs.min() > 0
+    assert ys.min() > 2 * MIRROR_FRACTION[1] * h

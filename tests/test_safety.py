@@ -63,6 +63,8 @@ def test_trial_metrics_by_hand():
     hit = trial_metrics(_steps([25.0] * 4, ttc=[4.0, 2.0, math.nan, math.nan], closing=[1.0] * 4,
                                drac_v=[0.5, 1.5, math.nan, math.nan]), 0.5)
     assert hit["ttc_min_s"] == 2.0 and hit["ttc_mean_s"] == pytest.approx(3.0) and hit["drac_max_mps2"] == 1.5
+    near = trial_metrics(_steps([25.0] * 2, ttc=[1e-12, math.nan], closing=[5.0] * 2, drac_v=[1.25e13, math.nan]), 0.5)
+    assert near["drac_max_mps2"] == 10.0  # the last sample before a contact: capped at about 1 g
     assert hit["tet_s"] == pytest.approx(0.5) and hit["tit_s2"] == pytest.approx(0.5) and hit["ttc_contact_s"] == 1.0
     assert hit["duration_s"] == 2.0 and hit["n_samples"] == 4
 

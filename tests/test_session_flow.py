@@ -20,7 +20,7 @@ import pytest
 
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
-from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol, render_screen
+from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, TextFont, load_protocol, render_screen
 from dt_highway.hmi.drive import DriveOptions, run_drive, trial_dir
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.hmi.session import STAGING, attempt_dirs, run_session, session_plan, status_line
@@ -357,3 +357,37 @@ def test_screens_fit_a_small_window_and_show_no_path(tmp_path):
     texts = [p.name, *(s.title + s.text for s in (*p.briefing, p.overlay, p.practice, p.trial, p.stopped, p.end))]
     path = re.compile(r"(^|\s)(/|\.\.?/|~/)\w|\\|\.(toml|json|jsonl|csv|png)\b|trials/|runs/")
     assert not any(path.search(t) for t in texts) and path.search("see runs/x") and path.search("in /tmp/x")
+
+
+# ------------------------------------------------------------------------ even letter spacing (issue 20)
+@pytest.mark.parametrize("px", [24, 39, 70])
+def test_screen_text_is_spaced_by_the_letters_advances_without_the_fonts_kerning(px):
+    # pygame.font (SDL_ttf) kerns freesansbold's pairs 1-4 px apart ("a bout", "sa fe", "bot tom" at 39-70 px);
+    # the screens' font adds no space between parts of a word
+    pygame.font.init()
+    font = TextFont(px)
+    for a, b in (("a", "bout"), ("sa", "fe"), ("contin", "ue"), ("bot", "tom"), ("c", "ut")):
+        assert font.size(a + b)[0] == font.size(a)[0] + font.size(b)[0], (a, b)
+
+
+def test_screens_are_drawn_without_pygame_font(monkeypatch):
+    def no_font(*_a, **_k):
+        raise AssertionError("the screens use TextFont (no kerning), not pygame.font.Font")
+
+    protocol = load_protocol(DEFAULT_PROTOCOL)
+    monkeypatch.setattr(pygame.font, "Font", no_font)
+    img = render_screen((640, 360), protocol.briefing[1], hint="Press Enter to continue", note="End the session?")
+    assert img.shape == (360, 640, 3) and (img != img[0, 0]).any()
+
+
+def test_the_reports_console_lines_line_up_for_long_condition_names(tmp_path, capsys):
+    from dt_highway.cli import _print_summary
+
+    cond = {"n": 4, "speed_variance_kmh2": {"mean": 12.5}, "ttc_mean_s": {"mean": None}, "collisions": 0,
+            "cut_ins": 3, "cut_ins_marked_in_time": 1}
+    path = tmp_path / "summary.json"
+    path.write_text(json.dumps({"conditions": {"baseline": cond, "adas-threat": cond, "sham": cond}}))
+    _print_summary(path)
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and {line.index("n=") for line in lines} == {2 + len("adas-threat") + 1}
+    assert lines[0].startswith("  baseline    n=  4")

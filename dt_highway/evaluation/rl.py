@@ -31,6 +31,7 @@ from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.drivers.policy import PolicyDriver
 from dt_highway.env.seat import DriverSeat
+from dt_highway.jsonio import dump_json
 from dt_highway.metrics.safety import TTC_CAP_S, collision_label, cut_in_outcomes, trial_metrics
 
 
@@ -317,7 +318,7 @@ def paired_by_seed(episodes: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
 def summarise_row(frame: pd.DataFrame) -> dict[str, Any]:
     """One row's figures: per metric n, mean, SD and 95 % CI (:func:`dt_highway.report.describe`),
     the collisions and their kinds, and the median over all its cut-ins of their minimum TTC."""
-    from dt_highway.report import describe  # lazy, as paired_by_seed
+    from dt_highway.report import describe  # lazy: jinja2 and matplotlib come with the report
 
     crashed = frame[frame["collision"].astype(bool)]
     kinds = Counter(str(k) or "unknown" for k in crashed["collision_label"])
@@ -466,7 +467,7 @@ def markdown_table(result: dict[str, Any]) -> str:
                          + f" | {k['a']} / {k['b']} ({k['only_a']}, {k['only_b']}) |")
         lines += ["", ("Δ is b − a (negative conflicts and positive TTC favour b); cut-in TTC pairs need a cut-in "
                   "in both episodes of the seed.")]
-        from dt_highway.report import MIN_PAIRS  # lazy, as paired_by_seed
+        from dt_highway.report import MIN_PAIRS  # lazy: jinja2 and matplotlib come with the report
 
         if result["episodes"] < MIN_PAIRS:
             lines.append(f"Small sample: {result['episodes']} pairs per comparison; below {MIN_PAIRS} the p-values "
@@ -486,7 +487,6 @@ def write_compare(result: dict[str, Any], out: str | Path) -> list[Path]:
 
     :return: the files written
     """
-    from dt_highway.jsonio import dump_json
 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)

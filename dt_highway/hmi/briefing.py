@@ -31,6 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame.freetype
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from dt_highway.config import ConfigError, read_toml
@@ -251,7 +252,45 @@ def format_duration(seconds: float) -> str:
 
 
 # ----------------------------------------------------------------------------- drawing
-def _wrap(font: pygame.font.Font, text: str, width: int) -> list[str]:
+DEFAULT_FONT_SCALE = 0.6875
+"""pygame's default font at ``pygame.font.Font(None, px)`` is drawn at ``px`` times this [pt at 72 dpi]"""
+
+
+class TextFont:
+    """pygame's default font (freesansbold) without kerning, with the methods of ``pygame.font.Font``
+    the screens use.
+
+    ``pygame.font`` (SDL_ttf) applies the font's kerning table, whose pairs in freesansbold are
+    off by a pixel or two at every size: "a bout", "sa fe", "contin ue". ``pygame.freetype`` with
+    kerning off spaces the letters by their advances only.
+
+    :param px: size as ``pygame.font.Font(None, px)`` takes it [px]
+    """
+
+    def __init__(self, px: int) -> None:
+        if not pygame.freetype.get_init():
+            pygame.freetype.init()
+        self._ft = pygame.freetype.Font(None, px * DEFAULT_FONT_SCALE)
+        self._ft.kerning = False
+        self._ft.pad = True  # every line as high as the font, the baselines aligned
+
+    def size(self, text: str) -> tuple[int, int]:
+        """Width and height of ``text`` drawn [px]."""
+        r = self._ft.get_rect(text)
+        return r.width, r.height
+
+    def get_linesize(self) -> int:
+        """Distance between lines [px]."""
+        return int(self._ft.get_sized_height(0))
+
+    def render(self, text: str, antialias: bool, colour: tuple[int, int, int],
+               background: tuple[int, int, int] | None = None) -> pygame.Surface:
+        """``text`` drawn in ``colour`` (on ``background``, else transparent); ``antialias`` as pygame's (always on)."""
+        surf, _ = self._ft.render(text, colour, background)
+        return surf
+
+
+def _wrap(font: TextFont, text: str, width: int) -> list[str]:
     """Lines of ``text`` no wider than ``width`` [px] (a blank line between paragraphs)."""
     lines: list[str] = []
     for para in re.split(r"\n\s*\n", text.strip()):
@@ -276,9 +315,9 @@ def _layout(size: tuple[int, int], screen: Screen, legend: Sequence[tuple[str, s
     surf = pygame.Surface(size)
     surf.fill(BACKGROUND)
     margin = max(int(0.06 * w), 8)
-    title_font = pygame.font.Font(None, max(int(body_px * 1.8), 12))
-    body = pygame.font.Font(None, body_px)
-    small = pygame.font.Font(None, max(int(body_px * 0.85), 10))
+    title_font = TextFont(max(int(body_px * 1.8), 12))
+    body = TextFont(body_px)
+    small = TextFont(max(int(body_px * 0.85), 10))
     y = int(0.07 * h)
     for line in _wrap(title_font, screen.title, w - 2 * margin):
         surf.blit(title_font.render(line, True, TITLE_COLOUR), (margin, y))
@@ -322,7 +361,7 @@ def render_screen(size: tuple[int, int], screen: Screen, legend: Sequence[tuple[
         surf, fits = _layout(size, screen, legend, hint, body_px)
     img = np.ascontiguousarray(pygame.surfarray.array3d(surf).swapaxes(0, 1))
     if note:
-        font = pygame.font.Font(None, max(int(body_px * 1.1), 12))
+        font = TextFont(max(int(body_px * 1.1), 12))
         text = font.render(note, True, TITLE_COLOUR, (0, 0, 0))
         band = np.ascontiguousarray(pygame.surfarray.array3d(text).swapaxes(0, 1))
         bh, bw = band.shape[:2]

@@ -15,7 +15,9 @@ Input: keys held through the 3-2-1 countdown act at t = 0 and are logged as pres
 (trial time to 0.1 ms, within the simulation step it fell in, and ``wall_time``, ISO 8601 UTC);
 every event of the log carries ``wall_time``. Pauses are logged (``pause_start``, ``pause_end``
 with ``duration_s``), SIGTERM and SIGINT end the trial as such (``signal`` events), a window
-closed by the window manager ends it at once.
+closed by the window manager ends it at once. With ``wheel`` a joystick or wheel drives instead
+(:mod:`dt_highway.hmi.joystick`, read once per simulation step, its values logged in the ``keys``
+column: :func:`wheel_text`); a missing calibration file runs the calibration screen first.
 
 Crashes: a red flash and a "COLLISION" banner (:data:`CRASH_BANNER_S`), a beep when a sound
 device is there (silent without); ``on_crash`` ``end`` ends the trial (status
@@ -58,6 +60,7 @@ import pygame  # loaded (without its banner) by highway-env already, which sets 
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
+from dt_highway.hmi.joystick import Calibration, CalibrationError, JoystickInput, calibration_screen, open_joystick
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
 from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 from dt_highway.overlay import draw_overlay
@@ -269,10 +272,8 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     t1, t2, t4 = max(1, round(1.5 * s)), max(1, round(2 * s)), max(1, round(4 * s))
     small = None
     if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
-        mh, mw = minimap.shape[:2]
-        tw = int(w * 0.36)
-        small = cv2.resize(minimap, (tw, max(1, int(mh * tw / mw))), interpolation=cv2.INTER_AREA)
-    band_h = max(int(110 * s), (small.shape[0] + 2 * pad) if small is not None else 0)
+        small = cv2.resize(minimap, _minimap_size(w, minimap), interpolation=cv2.INTER_AREA)
+    band_h = hud_band_height((w, h), minimap)
     band = out[h - band_h:, :]
     band[:] = (band * 0.45).astype(np.uint8)
     base = h - band_h // 2
@@ -294,6 +295,27 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     if hud.paused:
         dialog(out, PAUSE_LINES)
     return out
+
+
+def _minimap_size(w: int, minimap: np.ndarray) -> tuple[int, int]:
+    """The mini-map's size in a frame ``w`` pixels wide: ``(width, height)`` [px]."""
+    mh, mw = minimap.shape[:2]
+    tw = int(w * 0.36)
+    return tw, max(1, int(mh * tw / mw))
+
+
+def hud_band_height(size: tuple[int, int], minimap: np.ndarray | None = None) -> int:
+    """The height of the HUD's band at the bottom of a frame of :func:`compose_frame`.
+
+    :param size: the frame's ``(width, height)`` [px]
+    :param minimap: the mini-map drawn in it, or ``None``
+    :return: the band's height [px]
+    """
+    w, h = size
+    s = _scale(h)
+    if minimap is None:
+        return int(110 * s)
+    return max(int(110 * s), _minimap_size(w, minimap)[1] + 2 * int(16 * s))
 
 
 def _draw_mirror(out: np.ndarray, mirror: np.ndarray, pad: int) -> None:
@@ -353,6 +375,11 @@ class DriveOptions:
     :param simulation_hz: simulation frequency [Hz] (``None``: the scenario's); decisions follow it
     :param mirrors: draw the rear-view mirror (needs :mod:`dt_highway.camera.mirror`; none without it)
     :param sound: beep on a crash when a sound device is there
+    :param wheel: drive with this joystick or wheel (its index among those connected; ``None``: the keyboard):
+        its pedals give the acceleration, its wheel the lane changes (or the steering with ``steering``),
+        read once per simulation step (:class:`~dt_highway.hmi.joystick.JoystickInput`); P, M and Esc stay on the keyboard
+    :param wheel_calibration: the wheel's calibration file (``None``: ``<out>/wheel-calibration.json``); when
+        missing, the calibration screen runs first and saves it there
     """
 
     participant: str
@@ -376,6 +403,8 @@ class DriveOptions:
     simulation_hz: int | None = TRIAL_SIMULATION_HZ
     mirrors: bool = False
     sound: bool = True
+    wheel: int | None = None
+    wheel_calibration: Path | None = None
 
     @property
     def label(self) -> str:
@@ -689,6 +718,17 @@ def held_at_start(events: Iterable[KeyEvent]) -> dict[str, float]:
     return held
 
 
+def wheel_text(steer: float, throttle: float, brake: float) -> str:
+    """How a step's wheel values are logged in the ``keys`` column of ``steps.csv`` (beside the keys held).
+
+    :param steer: wheel command in ``[-1, 1]`` (positive to the right)
+    :param throttle: throttle travel in ``[0, 1]``
+    :param brake: brake travel in ``[0, 1]``
+    :return: e.g. ``wheel:steer=+0.500,throttle=1.000,brake=0.000``
+    """
+    return f"wheel:steer={steer:+.3f},throttle={throttle:.3f},brake={brake:.3f}"
+
+
 @dataclass
 class _Snapshot:
     """What the window shows of one simulation step (made by the simulation thread)."""
@@ -712,7 +752,7 @@ class _Trial:
     """
 
     def __init__(self, env: gym.Env, log: TrialWriter, opts: DriveOptions, info: dict[str, Any],
-                 shots_dir: Path, pre_start: Iterable[KeyEvent] = ()) -> None:
+                 shots_dir: Path, pre_start: Iterable[KeyEvent] = (), joystick: JoystickInput | None = None) -> None:
         u = env.unwrapped
         if not isinstance(u, DTHighwayEnv):
             raise TypeError(f"a keyboard trial drives a dt-highway-v0 env (got {type(u).__name__})")
@@ -722,6 +762,7 @@ class _Trial:
         self.dt = 1.0 / self.u.dt_config.highway.simulation_frequency
         self.rec = TrialRecorder(log)
         self.pedals, self.wheel = Pedals(), Steering()
+        self.joystick = joystick
         self.held: set[str] = set()
         self.lane_tap = 0
         self.n_steps = 0
@@ -875,17 +916,27 @@ class _Trial:
         self.wheel.reset()
         self.log.event("ego_reset", round(self.t_sim, 9), **placed)
 
-    def _step(self) -> None:
+    def _action(self) -> tuple[np.ndarray, str]:
+        """This step's action and what the ``keys`` column logs of it: the keys held and, with a wheel,
+        its values read now (:func:`wheel_text`)."""
         held = self.held
+        keys = ";".join(sorted(held))
+        if self.joystick is not None:  # the window's thread pumps the events that move the axes
+            cmd = self.joystick.read()
+            lane = cmd.steer if self.opts.steering else float(cmd.lane_tap or self.lane_tap)
+            return np.array([cmd.accel_mps2, lane]), ";".join(filter(None, (keys, wheel_text(cmd.steer, cmd.throttle,
+                                                                                             cmd.brake))))
         accel = self.pedals.update("UP" in held, "DOWN" in held, self.dt)
         if self.opts.steering:
-            action = np.array([accel, self.wheel.update("LEFT" in held, "RIGHT" in held, self.dt)])
-        else:
-            action = np.array([accel, float(self.lane_tap)])
+            return np.array([accel, self.wheel.update("LEFT" in held, "RIGHT" in held, self.dt)]), keys
+        return np.array([accel, float(self.lane_tap)]), keys
+
+    def _step(self) -> None:
+        action, keys = self._action()
         self.lane_tap = 0
         _, _, terminated, truncated, self.info = self.env.step(action)
         self.n_steps += 1
-        self.rec.record(self.info, action, ";".join(sorted(held)))
+        self.rec.record(self.info, action, keys)
         crashed = bool(self.u.vehicle.crashed)
         if crashed:
             self._on_crash()
@@ -954,12 +1005,52 @@ def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
 def _trial_meta(opts: DriveOptions, cfg: DTConfig, overrides: list[str], f_sim: float) -> dict[str, Any]:
     """The trial log's metadata (as a scripted trial's, the driver being the keyboard)."""
     return {"driver": "keyboard", "driver_file": None,
-            "driver_params": {"keys_from": opts.keys_from is not None, "steering": opts.steering},
+            "driver_params": {"keys_from": opts.keys_from is not None, "steering": opts.steering, "wheel": opts.wheel},
             "participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
             "pair": None, "seed": opts.seed, "scenario": opts.scenario, "overrides": overrides,
             "config": cfg.to_dict(), "simulation_frequency_hz": f_sim, "display_label": opts.label,
             "on_crash": opts.on_crash, "window": {"size_px": [cfg.camera.width_px, cfg.camera.height_px],
                                                   "fullscreen": opts.fullscreen, "mirrors": opts.mirrors}}
+
+
+def wheel_calibration_path(opts: DriveOptions) -> Path:
+    """The wheel's calibration file: ``wheel_calibration``, else ``<out>/wheel-calibration.json``."""
+    return Path(opts.wheel_calibration) if opts.wheel_calibration is not None else Path(opts.out) / "wheel-calibration.json"
+
+
+def open_wheel(opts: DriveOptions) -> pygame.joystick.JoystickType | None:
+    """The trial's wheel (``None``: the keyboard drives).
+
+    :raises ConfigError: one line naming ``--wheel``, when there is no such device
+    """
+    if opts.wheel is None:
+        return None
+    try:
+        return open_joystick(opts.wheel)
+    except CalibrationError as err:
+        raise ConfigError(f"--wheel {opts.wheel}: {err}") from None
+
+
+def _wheel_input(opts: DriveOptions, device: pygame.joystick.JoystickType,
+                 win: _Window) -> tuple[JoystickInput, Calibration] | None:
+    """The wheel's reader, with its calibration loaded, or made on the calibration screen and saved
+    (:func:`wheel_calibration_path`) when the file is missing.
+
+    :return: the reader and the calibration; ``None`` when the calibration was cancelled
+    :raises ConfigError: one line naming ``--wheel-calibration``, when the file is bad or does not fit the device
+    """
+    path = wheel_calibration_path(opts)
+    try:
+        if path.exists():
+            cal: Calibration | None = Calibration.load(path)
+        else:
+            cal = calibration_screen(device, save_to=path, window=win.screen)
+            pygame.display.set_caption(WINDOW_TITLE)
+        if cal is None:
+            return None
+        return JoystickInput(device, cal), cal
+    except (CalibrationError, ConfigError) as err:
+        raise ConfigError(f"--wheel-calibration {path}: {err}") from None
 
 
 def _countdown(win: _Window) -> list[KeyEvent] | None:
@@ -1069,13 +1160,14 @@ def _hold_crash_banner(win: _Window, trial: _Trial, last: np.ndarray | None, fps
 
 
 def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, info: dict[str, Any],
-           shots_dir: Path, pre_start: list[KeyEvent]) -> tuple[_Trial, list[float], float]:
+           shots_dir: Path, pre_start: list[KeyEvent],
+           joystick: JoystickInput | None = None) -> tuple[_Trial, list[float], float]:
     """The trial itself: the simulation in its own thread, the window in this one.
 
     :return: the trial, each frame's work [ms] and the trial's wall time [s]
     :raises BaseException: what failed in the simulation (the log is then closed as aborted)
     """
-    trial = _Trial(env, log, opts, info, shots_dir, pre_start)
+    trial = _Trial(env, log, opts, info, shots_dir, pre_start, joystick)
     sim = threading.Thread(target=trial.run, name="dt-highway-sim", daemon=True)
     old_switch = sys.getswitchinterval()
     sys.setswitchinterval(0.0005)  # the window gets the interpreter back quickly from the simulation
@@ -1158,7 +1250,12 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     old_switch = sys.getswitchinterval()
     with _Signals() as signals:
         try:
+            device = open_wheel(opts)
             win = _Window(size, opts.fullscreen, on_frame, signals)
+            wheel = None if device is None else _wheel_input(opts, device, win)
+            if wheel is not None:
+                meta["wheel"] = {"index": opts.wheel, "device": device.get_name() if device else "",
+                                 "calibration_file": str(wheel_calibration_path(opts)), "calibration": wheel[1].model_dump()}
             # the traffic and the twin's listening time are prepared while the participant reads the keys
             if not scripted:
                 win.show(card(size, "Preparing the trial...", []))
@@ -1166,18 +1263,23 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             env.render()  # highway-env's viewer (the mini-map) is made here, on the window's thread
             pygame.display.set_caption(WINDOW_TITLE)  # it renames the window
             win.screen = pygame.display.get_surface() or win.screen
-            if scripted:
+            if device is not None and wheel is None:
+                pre_start: list[KeyEvent] | None = None  # the wheel's set-up was cancelled
+            elif scripted:
                 assert opts.keys_from is not None
-                pre_start: list[KeyEvent] | None = opts.keys_from.due(-1e-6)  # keys "held through the countdown"
+                pre_start = opts.keys_from.due(-1e-6)  # keys "held through the countdown"
             else:
                 pre_start = _start_screens(win, opts.label)
             if pre_start is None:
-                reason = signals.received or ("window closed" if win.closed else "quit before the start")
+                reason = signals.received or ("window closed" if win.closed else
+                                              "wheel set-up cancelled" if device is not None and wheel is None
+                                              else "quit before the start")
                 say(_status_line(opts, directory, "not started", reason, 0.0, cfg.highway.duration, 0, 0))
                 return {"directory": str(directory), "status": "not started", "end_reason": reason,
                         "frames": 0, "screenshots": 0, "frame_ms": [], "size_px": list(size)}
             with _ClockedWriter(directory, meta) as log:
-                trial, frame_ms, loop_wall_s = _drive(win, env, log, opts, info, shots_dir, pre_start)
+                trial, frame_ms, loop_wall_s = _drive(win, env, log, opts, info, shots_dir, pre_start,
+                                                      None if wheel is None else wheel[0])
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
             if not scripted:

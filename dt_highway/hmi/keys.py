@@ -14,6 +14,10 @@ and demos can drive a trial without a person::
     3.0 up   UP
     4.0 down LEFT
     4.1 up   LEFT
+
+A script may start before 0 s, down to ``-COUNTDOWN_S``: driving keys pressed during the 3-2-1
+countdown (``-1.5 down UP``); those still held at 0 s act from the first step and are logged as
+pressed at 0 s, with when they were pressed (:func:`dt_highway.hmi.drive.held_at_start`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,10 @@ from pathlib import Path
 
 KEYS = ("UP", "DOWN", "LEFT", "RIGHT", "P", "ESC")
 """Key names of key scripts and logs"""
+COUNTDOWN_KEYS = ("UP", "DOWN", "LEFT", "RIGHT")
+"""The keys a script may press before 0 s (during the countdown)"""
+COUNTDOWN_S = 3.0
+"""The countdown before a trial (3-2-1) [s]: a key script's earliest time is ``-COUNTDOWN_S``"""
 
 
 @dataclass(frozen=True)
@@ -141,8 +149,8 @@ class KeyScriptError(ValueError):
 class KeyScript:
     """A timed key script: the key events of a trial, in time order.
 
-    Events at negative times (only through this constructor; a script file starts at 0) are keys
-    pressed during the countdown: the driving keys still held at t = 0 are pressed then
+    Events at negative times (down to ``-COUNTDOWN_S``, in a file too) are keys pressed during the
+    countdown: the driving keys still held at t = 0 are pressed then
     (:func:`dt_highway.hmi.drive.held_at_start`).
 
     :param events: the events (sorted by time; equal times keep their order)
@@ -173,14 +181,18 @@ class KeyScript:
                 t = float(t_text)
             except ValueError:
                 raise KeyScriptError(f"{where}: time must be a number of seconds (got {t_text!r})") from None
-            if not math.isfinite(t) or t < 0:
-                raise KeyScriptError(f"{where}: time must be >= 0 s (got {t_text})")
+            if not math.isfinite(t) or t < -COUNTDOWN_S:
+                raise KeyScriptError(f"{where}: time must be >= {-COUNTDOWN_S:g} s (before 0: the countdown) "
+                                     f"(got {t_text})")
             if t < last:
                 raise KeyScriptError(f"{where}: times must not go back ({t:g} s after {last:g} s)")
             if action not in ("down", "up"):
                 raise KeyScriptError(f"{where}: action must be 'down' or 'up' (got {parts[1]!r})")
             if key not in KEYS:
                 raise KeyScriptError(f"{where}: unknown key {parts[2]!r} (allowed: {', '.join(KEYS)})")
+            if t < 0 and key not in COUNTDOWN_KEYS:
+                raise KeyScriptError(f"{where}: only {', '.join(COUNTDOWN_KEYS)} can be pressed before 0 s "
+                                     f"(the countdown; got {key} at {t:g} s)")
             events.append(KeyEvent(t, action == "down", key))
             last = t
         return cls(events)

@@ -41,7 +41,7 @@ from dt_highway.camera.mirror import render_mirrors
 from dt_highway.conditions import display_name
 from dt_highway.config import ConfigError
 from dt_highway.env.core import DTHighwayEnv
-from dt_highway.hmi.drive import MIRROR_FRACTION, Hud, compose_frame, crash_layer, place_ego_after_crash
+from dt_highway.hmi.drive import MIRROR_FRACTION, Hud, compose_frame, crash_layer, hud_band_height, place_ego_after_crash
 
 NEEDED_COLUMNS = ("t_s", "x_m", "y_m", "action_accel_mps2", "action_lane", "keys")
 """The columns of ``steps.csv`` a replay reads"""
@@ -207,14 +207,18 @@ class ReplayResult:
         return self.diverged_at_s is None
 
 
-def _banner(img: np.ndarray, t_s: float, keys: str) -> None:
-    """The replay's banner, top right: trial time and keys held."""
-    h, w = img.shape[:2]
+def _banner(img: np.ndarray, t_s: float, keys: str, band_h: int = 0) -> None:
+    """The replay's banner, bottom left just above the HUD's band (clear of the mirrors at the top
+    and of the HUD): trial time and keys held.
+
+    :param band_h: the HUD band's height (:func:`~dt_highway.hmi.drive.hud_band_height`) [px]
+    """
+    h, _ = img.shape[:2]
     s = max(h / 720.0, 0.35)
     text = f"REPLAY  t = {t_s:6.2f} s  keys: {keys.replace(';', ' ') or '-'}"
     font = cv2.FONT_HERSHEY_DUPLEX
     (tw, th), _ = cv2.getTextSize(text, font, 0.7 * s, 1)
-    x0, y0 = w - tw - int(24 * s), int(16 * s)
+    x0, y0 = int(24 * s), h - band_h - th - int(20 * s)
     cv2.rectangle(img, (x0 - int(8 * s), y0 - int(6 * s)), (x0 + tw + int(8 * s), y0 + th + int(8 * s)), (0, 0, 0), -1)
     cv2.putText(img, text, (x0, y0 + th), font, 0.7 * s, (120, 220, 255), 1, cv2.LINE_AA)
 
@@ -281,11 +285,12 @@ class _Player:
         rgb = u.camera_image().rgb
         h, w = rgb.shape[:2]
         mirror = render_mirrors(u, (round(w * MIRROR_FRACTION[0]), round(h * MIRROR_FRACTION[1]))) if self.mirrors else None
-        img = compose_frame(rgb, marks, hud, minimap if isinstance(minimap, np.ndarray) else None, mirror)
+        shown_map = minimap if isinstance(minimap, np.ndarray) else None
+        img = compose_frame(rgb, marks, hud, shown_map, mirror)
         if self.crash_t_s is not None:
             img = crash_layer(img, t - self.crash_t_s)
         keys = self.trial.keys[self.n_env - 1] if self.n_env else ""
-        _banner(img, t, keys)
+        _banner(img, t, keys, hud_band_height((w, h), shown_map))
         return img
 
     def close(self) -> None:

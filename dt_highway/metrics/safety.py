@@ -22,7 +22,7 @@ Every definition, with its unit (the docs' "Safety metrics" page shows this text
 * **TTC** [s]: ``g / dv`` when ``dv > 0``, infinite when not closing or without a leader,
   NaN in contact.
 * **DRAC** [m/s^2]: deceleration rate to avoid the crash, ``dv^2 / (2 g)`` when closing, else
-  0; NaN in contact.
+  0; NaN in contact. A trial's maximum DRAC is capped at :data:`DRAC_CAP_MPS2` (10 m/s^2, about 1 g).
 * **time headway** [s]: ``g / v_ego`` (with a leader and ``v_ego > 0.1 m/s``).
 * **2-D TTC** (``ttc2d_s``, ``ttc2d_id``) [s]: the smallest, over the vehicles within
   ``range_2d_m`` (100 m, centre to centre), of the time until the ego's footprint and theirs
@@ -101,6 +101,10 @@ TTC_STAR_S = 3.0
 """TET/TIT threshold TTC* [s] (SUMO's SSM device default)"""
 TTC_CAP_S = 10.0
 """Mean TTC counts closing samples below this; minimum TTC, 2-D TTC and PET are capped at it [s]"""
+DRAC_CAP_MPS2 = 10.0
+"""A trial's maximum DRAC is capped here [m/s^2]: about 1 g, the most a car brakes on dry asphalt (tyre-road
+friction about 1); above it braking cannot avoid the crash, and in the last samples before a contact
+``dv^2 / (2 gap)`` grows without bound (1e13 m/s^2 was seen), which would swamp any mean over trials"""
 CONFLICT_TTC_S = 1.5
 """A conflict is an onset of 2-D TTC below this [s]"""
 RANGE_2D_M = 100.0
@@ -596,7 +600,8 @@ def _collision_metrics(steps: pd.DataFrame, dt_s: float, collisions: Sequence[di
 def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, Any]] = (),
                   ttc_star_s: float = TTC_STAR_S, ttc_cap_s: float = TTC_CAP_S,
                   hard_brake_mps2: float = HARD_BRAKE_MPS2, *, collisions: Sequence[dict[str, Any]] | None = None,
-                  planned_duration_s: float | None = None, conflict_ttc_s: float = CONFLICT_TTC_S) -> dict[str, Any]:
+                  planned_duration_s: float | None = None, conflict_ttc_s: float = CONFLICT_TTC_S,
+                  drac_cap_mps2: float = DRAC_CAP_MPS2) -> dict[str, Any]:
     """Every metric of one trial from its per-step samples (definitions: module docstring).
 
     :param steps: the samples, one row per simulation step (columns of :class:`SafetySample`)
@@ -612,6 +617,7 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
     :param planned_duration_s: the trial's configured duration [s] (``cut_short``: it ended
         earlier with a crash); ``None``: a trial that ends crashed counts as cut short
     :param conflict_ttc_s: a conflict is an onset of 2-D TTC below this [s]
+    :param drac_cap_mps2: the maximum DRAC is capped at this (:data:`DRAC_CAP_MPS2`) [m/s^2]
     :return: flat dict of metrics (units in the names)
     """
     n = len(steps)
@@ -637,7 +643,7 @@ def trial_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, 
         "tet_s": tet,
         "tit_s2": tit,
         "ttc_contact_s": float(np.isnan(ttc).sum() * dt_s),
-        "drac_max_mps2": float(drac_v.max()) if len(drac_v) else 0.0,
+        "drac_max_mps2": float(min(drac_v.max(), drac_cap_mps2)) if len(drac_v) else 0.0,
         "headway_mean_s": float(hw.mean()) if len(hw) else math.nan,
         "headway_min_s": float(hw.min()) if len(hw) else math.nan,
         **_ttc_2d_metrics(steps, dt_s, ttc_star_s, ttc_cap_s, conflict_ttc_s),
