@@ -104,7 +104,7 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-crash", choices=CRASH_POLICIES, default="end",
                    help="end: a crash ends the trial (status ended_by_collision); continue: the ego is put back in "
                         "its lane with a clear gap and the trial goes on, crashes counted (default end)")
-    p.add_argument("--mirrors", action="store_true", help="draw the rear-view mirror (when dt_highway.camera.mirror exists)")
+    p.add_argument("--mirrors", action="store_true", help="draw the rear-view mirror and two side mirrors along the top")
     p.add_argument("--no-sound", action="store_true", help="no beep on a crash")
     p.add_argument("--wheel", nargs="?", const=0, type=_wheel_index, metavar="INDEX",
                    help="drive with a wheel and pedals (or a gamepad) through pygame's joystick API: its index among "

@@ -410,10 +410,7 @@ def test_the_mirror_hook_draws_what_render_mirrors_returns(tmp_path, monkeypatch
         calls.append(size)
         return np.full((size[1], size[0], 3), (255, 0, 255), np.uint8)
 
-    fake = types.ModuleType(drive.MIRROR_MODULE)
-    fake.render_mirrors = render_mirrors
-    fake.__spec__ = __import__("importlib").machinery.ModuleSpec(drive.MIRROR_MODULE, None)
-    monkeypatch.setitem(sys.modules, drive.MIRROR_MODULE, fake)
+    monkeypatch.setattr(drive, "render_mirrors", render_mirrors)
     result = run_drive(_opts(tmp_path, keys_from=KeyScript([]), duration_s=0.5, mirrors=True, screenshot_every_s=0.5),
                        say=lambda s: None)
     mw, mh = round(480 * MIRROR_FRACTION[0]), round(270 * MIRROR_FRACTION[1])
@@ -425,9 +422,6 @@ def test_the_mirror_hook_draws_what_render_mirrors_returns(tmp_path, monkeypatch
     magenta = (shot == (255, 0, 255)).all(axis=-1)
     ys, xs = np.nonzero(magenta)
     assert magenta.sum() >= 0.9 * mw * mh and abs((xs.min() + xs.max()) / 2 - 240) <= 2 and ys.min() < 20
-    monkeypatch.delitem(sys.modules, drive.MIRROR_MODULE)
-    monkeypatch.setattr(drive.importlib.util, "find_spec", lambda name: None)
-    assert drive._mirror_renderer() is None  # no module: no mirror, no error
 
 
 def test_compose_frame_never_draws_the_condition(monkeypatch):

@@ -5,7 +5,7 @@ the synthetic camera as the main picture, in the overlay conditions the overlay'
 drawn on it (:func:`dt_highway.overlay.draw_overlay`, from the fusion's output only), a HUD
 (speed in km/h, lane, time left, a neutral label such as "Trial 2": never the condition's name),
 highway-env's top-down view as a mini-map (M toggles it) and, with ``mirrors``, the rear-view
-mirror image of :func:`dt_highway.camera.mirror.render_mirrors` (when that module exists). The
+mirror image of :func:`dt_highway.camera.mirror.render_mirrors`. The
 simulation is locked to the wall clock at its configured frequency (trials default to
 :data:`TRIAL_SIMULATION_HZ`, one decision per simulation step); the window redraws at up to
 ``fps`` frames per second, the composed picture scaled to the window (resizable, or fullscreen).
@@ -35,8 +35,6 @@ Headless: ``SDL_VIDEODRIVER=offscreen``.
 from __future__ import annotations
 
 import contextlib
-import importlib
-import importlib.util
 import math
 import os
 import queue
@@ -57,6 +55,7 @@ import gymnasium as gym
 import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
+from dt_highway.camera.mirror import render_mirrors
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
@@ -94,10 +93,6 @@ CRASH_FLASH_S = 0.5
 
 SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
 """Allowed window sizes: (width min, max), (height min, max) [px]"""
-
-MIRROR_MODULE = "dt_highway.camera.mirror"
-"""Where the rear-view mirror's renderer lives (``render_mirrors(env, size) -> np.ndarray | None``, ``env``
-unwrapped, ``size`` ``(width, height)`` [px])"""
 
 MIRROR_FRACTION = (0.6, 0.17)
 """The mirror image's size asked for, as fractions of the frame's width and height"""
@@ -679,18 +674,6 @@ def place_ego_after_crash(env: DTHighwayEnv, min_gap_m: float = 30.0, headway_s:
     return {"x_m": float(ego.position[0]), "moved_m": s - s_ego, "lane": int(lane_index[2]) + 1, "speed_mps": speed}
 
 
-def _mirror_renderer() -> Callable[[DTHighwayEnv, tuple[int, int]], np.ndarray | None] | None:
-    """:func:`dt_highway.camera.mirror.render_mirrors` when that module exists (``None`` without it)."""
-    try:
-        if importlib.util.find_spec(MIRROR_MODULE) is None:
-            return None
-        module = importlib.import_module("dt_highway.camera.mirror")  # a literal: the import wall checks it
-    except ImportError:
-        return None
-    fn = getattr(module, "render_mirrors", None)
-    return fn if callable(fn) else None
-
-
 # ------------------------------------------------------------------------------------------ the trial
 class _ClockedWriter(TrialWriter):
     """The trial writer with the wall clock on every event (``wall_time``, ISO 8601 UTC; when the
@@ -786,7 +769,7 @@ class _Trial:
         self.pauses: list[dict[str, Any]] = []
         self.crashes: list[dict[str, Any]] = []
         self.crash_mono: float | None = None
-        self.mirror_fn = _mirror_renderer() if opts.mirrors else None
+        self.mirror_fn = render_mirrors if opts.mirrors else None
         self.rec.record(info, np.array([self.pedals.accel_mps2, 0.0]), "")
         for key, t_press in held_at_start(pre_start).items():  # held through the countdown: pressed at t = 0
             self.key_event(KeyEvent(0.0, True, key), pressed_at_s=round(t_press, 4))
