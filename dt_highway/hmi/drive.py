@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, Self
 
 import cv2
 import gymnasium as gym
@@ -421,17 +421,15 @@ def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Pa
 
 
 # ------------------------------------------------------------------------------------------ signals
-class _Signals:
-    """SIGTERM and SIGINT while the window is up: handed to the running trial as its end (logged
-    as such), else noted so that the screens stop waiting. Installed before SDL starts, which
-    would otherwise turn SIGTERM into a window close."""
+class SignalScope:
+    """SIGTERM and SIGINT go to :meth:`_handle` inside the ``with`` block (installed from the main
+    thread only); the previous handlers come back after it. ``received`` is for the first signal's name."""
 
     def __init__(self) -> None:
         self.received: str | None = None
-        self.trial: _Trial | None = None
         self._old: dict[int, Any] = {}
 
-    def __enter__(self) -> _Signals:
+    def __enter__(self) -> Self:
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT):
                 self._old[sig] = signal.signal(sig, self._handle)
@@ -442,7 +440,20 @@ class _Signals:
             signal.signal(sig, old)
         self._old.clear()
 
-    def _handle(self, signum: int, _where: FrameType | None) -> None:
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        raise NotImplementedError
+
+
+class _Signals(SignalScope):
+    """SIGTERM and SIGINT while the window is up: handed to the running trial as its end (logged
+    as such), else noted so that the screens stop waiting. Installed before SDL starts, which
+    would otherwise turn SIGTERM into a window close."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.trial: _Trial | None = None
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
         self.received = self.received or name
         trial = self.trial

@@ -43,7 +43,6 @@ import json
 import re
 import shutil
 import signal
-import threading
 import time
 import zlib
 from collections.abc import Callable, Sequence
@@ -58,7 +57,7 @@ import pygame
 from dt_highway.conditions import check_condition, shows_overlay
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
-from dt_highway.hmi.drive import DriveOptions, drive_config, run_drive, trial_dir
+from dt_highway.hmi.drive import DriveOptions, SignalScope, drive_config, run_drive, trial_dir
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.hmi.questionnaire import load_answers, load_questionnaire, read_results, run_questionnaires
 from dt_highway.jsonio import json_safe
@@ -275,21 +274,11 @@ def status_line(participant: str, trial: SessionTrial, attempt: int, result: dic
 
 
 # ----------------------------------------------------------------------------- signals
-class _Signals:
+class _Signals(SignalScope):
     """SIGTERM and SIGINT during a session: the first is noted and the window asked to close
     (the trial running ends as when its window is closed; a screen ends the session); a second
     SIGINT raises ``KeyboardInterrupt``. A handler the driving window installs for its trial
     takes precedence while it runs."""
-
-    def __init__(self) -> None:
-        self.received: str | None = None
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _Signals:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
@@ -300,10 +289,6 @@ class _Signals:
             pygame.event.post(pygame.event.Event(pygame.QUIT))
         except pygame.error:  # no window open
             pass
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
 
 
 def _signal_in(reason: str) -> str | None:
