@@ -74,14 +74,19 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _seed(text: str) -> int:
+def _whole(text: str, not_a_number: str, negative: str) -> int:
+    """``text`` as a whole number >= 0, else argparse's error with the message given for the case."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--seed must be a whole number (got '{text}')") from None
+        raise argparse.ArgumentTypeError(f"{not_a_number} (got '{text}')") from None
     if value < 0:
-        raise argparse.ArgumentTypeError(f"--seed must be >= 0 (got {text})")
+        raise argparse.ArgumentTypeError(f"{negative} (got {text})")
     return value
+
+
+def _seed(text: str) -> int:
+    return _whole(text, "--seed must be a whole number", "--seed must be >= 0")
 
 
 def _add_drive_args(p: argparse.ArgumentParser) -> None:
@@ -115,13 +120,7 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
 
 
 def _wheel_index(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--wheel must be a device index >= 0 (got '{text}')") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"--wheel must be a device index >= 0 (got {text})")
-    return value
+    return _whole(text, "--wheel must be a device index >= 0", "--wheel must be a device index >= 0")
 
 
 def _window_size(text: str) -> tuple[int, int]:
@@ -739,9 +738,20 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"last evaluation ({cfg.eval_episodes} held-out episodes at {last['timesteps']} steps): "
               f"mean return {last['mean_return']:.2f}, mean length {last['mean_length']:.0f} decisions, "
               f"collision rate {last['collision_rate']:.2f}")
-    print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), "
-          f"checkpoints and logs in {meta['checkpoints']}")
+    print(f"wrote {out}, {sidecar_path(out)} (config, versions, evaluations), {out.with_suffix('.curve.png')} "
+          f"(training curve, and .csv), checkpoints and logs in {meta['checkpoints']}")
     return 130 if meta["interrupted"] else 0
+
+
+def cmd_rl_curve(args: argparse.Namespace) -> int:
+    """Re-draw a policy's training curve (CSV + PNG) from its training log and metadata."""
+    from dt_highway.rl.curves import write_curve  # lazy: matplotlib
+
+    if Path(args.model).suffix != ".zip":
+        raise ConfigError(f"MODEL must be a policy .zip, e.g. agents/ppo-safe-adas.zip (got {args.model})")
+    csv_path, png_path = write_curve(args.model, args.progress)
+    print(f"wrote {csv_path} and {png_path}")
+    return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -1047,6 +1057,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("rl-curve", help="re-draw a policy's training curve (<model>.curve.csv and .png)")
+    p.add_argument("model", metavar="MODEL", help="the policy, e.g. agents/ppo-safe-adas.zip (its .json beside it)")
+    p.add_argument("--progress", metavar="CSV",
+                   help="the training log (default: progress.csv in the metadata's checkpoints folder, or <model>.d/)")
+    p.set_defaults(func=cmd_rl_curve)
 
     p = sub.add_parser("evaluate", help="any driver (policy .zip or scripted .toml) on the same seeds")
     _add_config_args(p, EVAL_SCENARIO)

@@ -5,6 +5,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from dt_highway.cli import main
@@ -35,6 +36,10 @@ def _tiny(tmp_path: Path, observation: str, algorithm: str, n_envs: int = 1, ste
     assert meta["env_config"]["highway"]["observation"]["type"] == {"kinematics": "Kinematics",
                                                                      "adas": "OverlayKinematics"}[observation]
     assert any(out.with_suffix(".d").glob("checkpoint_*.zip"))
+    curve = pd.read_csv(out.with_suffix(".curve.csv"))  # the training curve, written by train()
+    evals = curve.dropna(subset=["eval_mean_return"])
+    assert evals["eval_mean_return"].tolist() == pytest.approx([e["mean_return"] for e in meta["evaluations"]])
+    assert curve["train_length_mean"].notna().any() and out.with_suffix(".curve.png").stat().st_size > 10_000
     return out
 
 

@@ -42,9 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from dt_highway.config import ConfigError, DTConfig, IntentionConfig, deep_merge, dotted_tree, merge
+from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
 from dt_highway.env import DTHighwayEnv
-from dt_highway.evaluation.twin import auc, episode_steps
+from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
 from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model
 from dt_highway.world.traffic import EGO_ID, vehicle_id
 
@@ -71,8 +71,6 @@ SWEEP = (
     ("rate_hz", "twin.uplink.rate_hz", (10.0, 5.0, 2.0, 1.0)),
 )
 """One-at-a-time sweep of the uplink (the other settings at their configured values)"""
-STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
-"""The degraded uplink: 300 ms at 1 Hz"""
 CUT_IN_GAP_M = 60.0
 """Cut-ins are counted within this bumper gap (the safety monitor's range) [m]"""
 
@@ -564,17 +562,7 @@ def evaluate_intent(
 
 
 def _settings(cfg: DTConfig) -> dict[str, Any]:
-    return {
-        "noise_sigma_m": cfg.twin.uplink.noise_sigma_m,
-        "uplink_rate_hz": cfg.twin.uplink.rate_hz,
-        "latency_mean_s": cfg.twin.uplink.latency_mean_s,
-        "loss_prob": cfg.twin.uplink.loss_prob,
-        "preroll_s": cfg.twin.preroll_s,
-        "duration_s": cfg.highway.duration,
-        "vehicles_count": cfg.highway.vehicles_count,
-        "aggressive_fraction": cfg.traffic.aggressive_fraction,
-        "update_hz": cfg.twin.intention.update_hz,
-    }
+    return {**uplink_settings(cfg), "update_hz": cfg.twin.intention.update_hz}
 
 
 def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]:
@@ -604,19 +592,13 @@ def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]
 
 def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
                      progress: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
-    """The uplink sweep (``SWEEP`` one at a time, then ``STRESS``) of the configured model.
+    """The uplink sweep (``SWEEP`` one at a time, then the degraded uplink,
+    :data:`~dt_highway.evaluation.twin.UPLINK_STRESS`) of the configured model.
 
     :return: one row per setting: ``parameter``, ``value`` and the :func:`headline` numbers
     """
-    runs: list[tuple[str, Any, dict[str, Any]]] = []
-    for name, key, values in SWEEP:
-        runs += [(name, v, dotted_tree(key, v)) for v in values]
-    stress: dict[str, Any] = {}
-    for key, v in STRESS.items():
-        stress = deep_merge(stress, dotted_tree(key, v))
-    runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
     rows = []
-    for name, value, extra in runs:
+    for name, value, extra in uplink_sweep_runs(SWEEP):
         res = evaluate_intent(merge(config, extra), episodes, seed, models=(), progress=progress)
         rows.append({"parameter": name, "value": value, **headline(res)})
     return rows

@@ -30,8 +30,9 @@ import numpy as np
 from dt_highway.camera.pinhole import PinholeCamera
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.truth import CameraTruth
-from dt_highway.config import DTConfig, deep_merge, dotted_tree, merge
+from dt_highway.config import DTConfig, merge
 from dt_highway.env import DTHighwayEnv
+from dt_highway.evaluation.twin import uplink_sweep_runs
 from dt_highway.jsonio import dump_json
 from dt_highway.perception import (
     METHODS,
@@ -322,8 +323,6 @@ SWEEP = (
     ("rate_hz", "twin.uplink.rate_hz", (10.0, 5.0, 1.0)),
 )
 """One-at-a-time sweep of the uplink (the other settings at their configured values)"""
-STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
-"""The degraded uplink of the targets: 300 ms at 1 Hz"""
 
 
 def run_sweep(
@@ -340,15 +339,8 @@ def run_sweep(
     :return: one row per (setting, method): ``parameter``, ``value``, ``method``,
         ``acc_iou50``, ``acc_iou70``, ``acc_iou70_tricky``, ``n_frames``, ``n_tricky``
     """
-    runs: list[tuple[str, Any, dict[str, Any]]] = []
-    for name, key, values in SWEEP:
-        runs += [(name, v, dotted_tree(key, v)) for v in values]
-    stress: dict[str, Any] = {}
-    for key, v in STRESS.items():
-        stress = deep_merge(stress, dotted_tree(key, v))
-    runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
     rows = []
-    for name, value, extra in runs:
+    for name, value, extra in uplink_sweep_runs(SWEEP):
         res = run_matching(merge(config, extra), frames, seed, methods, settings, progress)
         summ = res.summary()
         for m in methods:

@@ -39,12 +39,46 @@ from typing import Any
 
 import numpy as np
 
-from dt_highway.config import ConfigError, DTConfig, NormalTrait, merge
+from dt_highway.config import ConfigError, DTConfig, NormalTrait, deep_merge, dotted_tree, merge
 from dt_highway.env import DTHighwayEnv
 from dt_highway.labels import AGGRESSIVE
 from dt_highway.twin.tagger import DriverRecord
 from dt_highway.world.continuum import draw_traits, top_share
 from dt_highway.world.traffic import EGO_ID, Driver, DriverPopulation
+
+UPLINK_STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
+"""The degraded uplink of the targets: 300 ms at 1 Hz"""
+
+
+def uplink_settings(cfg: DTConfig) -> dict[str, Any]:
+    """The uplink, population and episode settings an evaluation's JSON records."""
+    return {
+        "noise_sigma_m": cfg.twin.uplink.noise_sigma_m,
+        "uplink_rate_hz": cfg.twin.uplink.rate_hz,
+        "latency_mean_s": cfg.twin.uplink.latency_mean_s,
+        "loss_prob": cfg.twin.uplink.loss_prob,
+        "preroll_s": cfg.twin.preroll_s,
+        "duration_s": cfg.highway.duration,
+        "vehicles_count": cfg.highway.vehicles_count,
+        "aggressive_fraction": cfg.traffic.aggressive_fraction,
+    }
+
+
+def uplink_sweep_runs(sweep: tuple[tuple[str, str, tuple[float, ...]], ...]) -> list[tuple[str, Any, dict[str, Any]]]:
+    """The runs of an uplink sweep: each ``(name, dotted key, values)`` one value at a time, then
+    :data:`UPLINK_STRESS` (both settings together) as ``latency_0.3s_at_1hz``.
+
+    :param sweep: the settings swept
+    :return: ``(parameter name, value, configuration update)`` per run
+    """
+    runs: list[tuple[str, Any, dict[str, Any]]] = []
+    for name, key, values in sweep:
+        runs += [(name, v, dotted_tree(key, v)) for v in values]
+    stress: dict[str, Any] = {}
+    for key, v in UPLINK_STRESS.items():
+        stress = deep_merge(stress, dotted_tree(key, v))
+    runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
+    return runs
 
 
 def episode_steps(config: DTConfig) -> int:
@@ -300,14 +334,5 @@ def _result(score: _Score, times_to_tag: list[float], untagged_aggressive: int, 
         "episodes": episodes,
         "seed": seed,
         "min_observed_s": score.min_observed_s,
-        "settings": {
-            "noise_sigma_m": cfg.twin.uplink.noise_sigma_m,
-            "uplink_rate_hz": cfg.twin.uplink.rate_hz,
-            "latency_mean_s": cfg.twin.uplink.latency_mean_s,
-            "loss_prob": cfg.twin.uplink.loss_prob,
-            "preroll_s": cfg.twin.preroll_s,
-            "duration_s": cfg.highway.duration,
-            "vehicles_count": cfg.highway.vehicles_count,
-            "aggressive_fraction": cfg.traffic.aggressive_fraction,
-        },
+        "settings": uplink_settings(cfg),
     }

@@ -12,7 +12,8 @@ the best one is kept. Checkpoints and a CSV log of stable-baselines3's statistic
 ``<out>.d/``; TensorBoard logs optionally. Beside the model ``<out>.zip`` goes
 ``<out>.json``: the training configuration, the resolved env configuration, the package
 versions, the evaluations and the model file's SHA-256, which is what
-:func:`~dt_highway.drivers.policy.load_policy` reads to drive with it.
+:func:`~dt_highway.drivers.policy.load_policy` reads to drive with it; and the training curve,
+``<out>.curve.csv`` and ``.curve.png`` (:mod:`dt_highway.rl.curves`).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from tqdm.auto import tqdm
 from dt_highway.agent_config import RewardConfig
 from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.rl.config import TrainConfig
+from dt_highway.rl.curves import write_curve
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
 from dt_highway.rl.rewards import RewardTermsLogger, SafetyReward
 
@@ -271,12 +273,31 @@ def _close(venv: VecEnv) -> None:
         pass
 
 
+def _save(model: BaseAlgorithm, out: Path, meta: dict[str, Any]) -> None:
+    """Write the model, its metadata (``meta`` plus the model file's SHA-256, in ``meta`` too) and its
+    training curve: the model first (as a temporary), then the metadata naming its hash, then both
+    in place; the curve from the log in ``meta["checkpoints"]``."""
+    tmp_model = out.with_name(out.stem + ".tmp.zip")
+    model.save(tmp_model)
+    meta["model_sha256"] = sha256(tmp_model)
+    sidecar = sidecar_path(out)
+    tmp_meta = sidecar.with_name(sidecar.name + ".tmp")
+    tmp_meta.write_text(json.dumps(meta, indent=2), encoding="utf-8")
+    os.replace(tmp_model, out)
+    os.replace(tmp_meta, sidecar)
+    try:
+        write_curve(out, Path(meta["checkpoints"]) / "progress.csv")
+    except ConfigError as err:  # stopped before the first rollout ended: no curve to draw
+        print(f"no training curve: {err}", file=sys.stderr)
+
+
 def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_envs: int | None = None,
           tensorboard_dir: str | None = None, progress: bool = True, lean: bool = True) -> dict[str, Any]:
-    """Train a policy and save it with its metadata.
+    """Train a policy and save it with its metadata and training curve.
 
     :param cfg: training configuration
-    :param out: model file to write (``.zip``); ``<out>.json`` and ``<out>.d/`` go beside it
+    :param out: model file to write (``.zip``); ``<out>.json``, ``<out>.curve.csv``, ``<out>.curve.png``
+        and ``<out>.d/`` go beside it
     :param timesteps: override of ``cfg.timesteps`` (both rounded up to whole rollouts, :func:`round_timesteps`,
         with a line on stderr)
     :param n_envs: override of ``cfg.n_envs``
@@ -348,9 +369,6 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         if not interrupted:
             evaluator.run()  # the final policy's held-out numbers
     evaluator.env.close()
-    # model first (as a temporary), then the metadata naming its hash, then both in place
-    tmp_model = out.with_name(out.stem + ".tmp.zip")
-    model.save(tmp_model)
     meta = {
         "format": FORMAT,
         "algorithm": cfg.algorithm,
@@ -366,11 +384,6 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         "steps_per_s": round(model.num_timesteps / wall, 1) if wall > 0 else None,
         "evaluations": evaluator.results,
         "checkpoints": str(work),
-        "model_sha256": sha256(tmp_model),
     }
-    sidecar = sidecar_path(out)
-    tmp_meta = sidecar.with_name(sidecar.name + ".tmp")
-    tmp_meta.write_text(json.dumps(meta, indent=2), encoding="utf-8")
-    os.replace(tmp_model, out)
-    os.replace(tmp_meta, sidecar)
+    _save(model, out, meta)
     return meta
