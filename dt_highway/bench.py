@@ -251,8 +251,9 @@ def bench_fusion(frames: int = 300, n_vehicles: int = 20, seed: int = 0) -> dict
 
 DRIVE_TARGET_P99_MS = 33.0
 """Frame time the driving window must keep at p99 (30 FPS) [ms]"""
-DRIVE_TARGET_FPS = 30.0
-"""Frames per second the driving window must reach [1/s]"""
+DRIVE_TARGET_PICTURE_SHARE = 0.95
+"""Share of the simulation's steps the driving window must show (pictures per second over the
+simulation frequency; a picture is drawn only when a step changed it) [-]"""
 
 
 def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 640, height_px: int = 360,
@@ -271,10 +272,12 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
     :param width_px: window and camera width [px]
     :param height_px: window and camera height [px]
     :param condition: ``adas`` (fusion and overlay on) or ``baseline``
-    :return: frame-time median, p90, p99 and max [ms], frames, achieved FPS over the trial's wall
-        time, simulated over wall time (1.0: the simulation kept real time), targets and whether
-        they are met, the SDL video driver used (``video_driver``: ``x11``, ``wayland``, ``offscreen``...)
-        and the display it was given (``display``: ``DISPLAY`` or ``WAYLAND_DISPLAY``, ``None``)
+    :return: frame-time median, p90, p99 and max [ms] of the frames that drew a picture, frames,
+        ``fps``: pictures shown per second of the trial's wall time (at most the simulation
+        frequency: a picture is drawn when a step changed it), simulated over wall time (1.0: the
+        simulation kept real time), targets (p99 <= 33 ms, ``fps`` >= 0.95 x the simulation
+        frequency) and whether they are met, the SDL video driver used (``video_driver``: ``x11``,
+        ``wayland``, ``offscreen``...) and the display it was given (``display``: ``DISPLAY`` or ``WAYLAND_DISPLAY``, ``None``)
     :raises ConfigError: when the window cannot be opened (a display that cannot be reached)
     """
     display = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
@@ -306,15 +309,17 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
         ms = np.asarray(result["frame_ms"][1:], dtype=float)  # the first frame pays for warm-up
     p99 = float(np.percentile(ms, 99))
     fps = len(ms) / max(result["trial_wall_s"], 1e-9)
+    fps_target = DRIVE_TARGET_PICTURE_SHARE * float(result["simulation_frequency_hz"])
     return {
         "condition": condition, "vehicles": vehicles, "size_px": [width_px, height_px], "duration_s": duration_s,
         "end_reason": result["end_reason"], "sim_s": round(result["trial_sim_s"], 2),
         "wall_s": round(result["trial_wall_s"], 2),
         "realtime_factor": round(result["trial_sim_s"] / max(result["trial_wall_s"], 1e-9), 3),
-        "frames": int(len(ms)), "fps": round(fps, 1), "fps_target_met": fps >= DRIVE_TARGET_FPS,
+        "frames": int(len(ms)), "fps": round(fps, 1), "fps_target": round(fps_target, 1),
+        "fps_target_met": fps >= fps_target,
         "frame_ms": {"median": round(float(np.median(ms)), 2), "p90": round(float(np.percentile(ms, 90)), 2),
                      "p99": round(p99, 2), "max": round(float(ms.max()), 2)},
-        "target_p99_ms": DRIVE_TARGET_P99_MS, "target_met": p99 <= DRIVE_TARGET_P99_MS and fps >= DRIVE_TARGET_FPS,
+        "target_p99_ms": DRIVE_TARGET_P99_MS, "target_met": p99 <= DRIVE_TARGET_P99_MS and fps >= fps_target,
         "wall_s_with_setup": round(wall, 1), "video_driver": used[0] if used else None, "display": display,
     }
 

@@ -100,7 +100,9 @@ def _add_drive_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screenshot-every", type=_positive(float, "--screenshot-every"), metavar="S",
                    help="save what the participant sees every S seconds of trial time")
     p.add_argument("--screenshots", metavar="DIR", help="where screenshots go (default <trial>/screenshots)")
-    p.add_argument("--fps", type=_positive(int, "--fps"), default=60, help="most window frames per second (default 60)")
+    p.add_argument("--fps", type=_positive(int, "--fps"), default=60,
+                   help="how often the window reads keys and may draw, per second (default 60); "
+                        "a picture is drawn only when the simulation changed it")
     p.add_argument("--no-minimap", action="store_true", help="start with the mini-map hidden (M toggles it)")
     p.add_argument("--steering", action="store_true", help="Left/Right steer (self-centring) instead of changing lanes")
     p.add_argument("--size", type=_window_size, metavar="WxH",
@@ -596,11 +598,11 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
     else:
         f = result["frame_ms"]
         print(f"driving window {result['size_px'][0]}x{result['size_px'][1]}, {result['vehicles']} vehicles, "
-              f"{result['condition']}: {result['frames']} frames in {result['wall_s']:g} s ({result['fps']} FPS), "
+              f"{result['condition']}: {result['frames']} pictures in {result['wall_s']:g} s ({result['fps']} per s), "
               f"{result['sim_s']:g} s simulated (real-time factor {result['realtime_factor']}, "
               f"{result['end_reason']}); "
               f"frame time median {f['median']} ms, p90 {f['p90']} ms, p99 {f['p99']} ms, max {f['max']} ms "
-              f"(targets p99 <= {result['target_p99_ms']:g} ms and >= 30 FPS: "
+              f"(targets p99 <= {result['target_p99_ms']:g} ms and >= {result['fps_target']:g} pictures/s: "
               f"{'met' if result['target_met'] else 'NOT met'}); video driver {result['video_driver']}"
               + (f" (the display {result['display']} was not used)"
                  if result["display"] and result["video_driver"] not in ("x11", "wayland") else ""))

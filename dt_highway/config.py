@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args
 
@@ -1006,6 +1007,34 @@ def read_toml(path: str | Path, what: str) -> dict[str, Any]:
         raise ConfigError(f"{what} not found: {p}") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
         raise ConfigError(f"cannot read {what} {p}: {err}") from None
+
+
+def read_user_file(path: str | Path, parse: Callable[[str], Any], parse_errors: type[Exception] | tuple[type[Exception], ...],
+                   missing: str, unreadable: str, malformed: str) -> Any:
+    """Read and parse a file a user names (UTF-8 text), every failure a one-line :class:`ConfigError`
+    in the caller's words. The messages are :meth:`str.format` templates of ``path`` (the file) and
+    ``err`` (the exception, its attributes too: ``{err.msg}``).
+
+    :param path: the file
+    :param parse: text to data (``json.loads``, ``tomllib.loads``)
+    :param parse_errors: what ``parse`` raises on bad content (``json.JSONDecodeError``...)
+    :param missing: the message when the file does not exist
+    :param unreadable: the message when it cannot be read or is not UTF-8
+    :param malformed: the message when ``parse`` fails
+    :return: what ``parse`` made of it (not yet validated)
+    :raises ConfigError: one of the three messages
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError as err:
+        raise ConfigError(missing.format(path=p, err=err)) from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(unreadable.format(path=p, err=err)) from None
+    try:
+        return parse(text)
+    except parse_errors as err:
+        raise ConfigError(malformed.format(path=p, err=err)) from None
 
 
 def parse_override(text: str) -> dict[str, Any]:

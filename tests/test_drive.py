@@ -177,12 +177,12 @@ def test_the_interactive_path_start_screen_keys_and_esc_with_confirmation(tmp_pa
     plan = {1: (pygame.KEYDOWN, pygame.K_RETURN), 2: (pygame.KEYDOWN, pygame.K_RETURN),
             3: (pygame.KEYDOWN, pygame.K_RETURN), 4: (pygame.KEYDOWN, pygame.K_RETURN),
             10: (pygame.KEYDOWN, pygame.K_UP), 25: (pygame.KEYUP, pygame.K_UP),
-            30: (pygame.KEYDOWN, pygame.K_ESCAPE), 34: (pygame.KEYDOWN, pygame.K_ESCAPE)}
+            30: (pygame.KEYDOWN, pygame.K_ESCAPE), 31: (pygame.KEYDOWN, pygame.K_ESCAPE)}  # paused: no new picture
     shown = []
 
     def press(img):
         shown.append(img)
-        kind, key = plan.get(len(shown), (pygame.KEYDOWN, pygame.K_RETURN) if len(shown) > 40 else (None, None))
+        kind, key = plan.get(len(shown), (pygame.KEYDOWN, pygame.K_RETURN) if len(shown) > 31 else (None, None))
         if kind is not None:
             pygame.event.post(pygame.event.Event(kind, key=key))
 

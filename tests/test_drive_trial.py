@@ -19,7 +19,7 @@ import pytest
 
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
-from dt_highway.hmi import drive
+from dt_highway.hmi import crash, drive, picture, screens
 from dt_highway.hmi.drive import (
     CRASH_BANNER_S,
     MIRROR_FRACTION,
@@ -46,6 +46,20 @@ V1 = "envs/highway-trial-v1.toml"  # no near-miss cut-ins: no crash in the first
 def _opts(tmp_path, participant="P01", condition="adas", **kw):
     base = {"scenario": V1, "overrides": list(QUIET), "duration_s": 1.5, "simulation_hz": 15, "minimap": False}
     return DriveOptions(participant, condition, tmp_path / "s", **{**base, **kw})
+
+
+def _spy_text(monkeypatch):
+    """Every text drawn on the participant's pictures and screens (all go through ``screens._text``)."""
+    texts = []
+    real = screens._text
+
+    def spy(img, text, *a, **k):
+        texts.append(text)
+        return real(img, text, *a, **k)
+
+    for module in (screens, picture, crash):  # each draws with the helper it imported
+        monkeypatch.setattr(module, "_text", spy)
+    return texts
 
 
 def _keys(trial):
@@ -114,11 +128,9 @@ def _interactive(tmp_path, plan, *, condition="sham", label="Trial 2", duration_
 
 def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_only_end_screen(tmp_path, monkeypatch):
     down, up = pygame.KEYDOWN, pygame.KEYUP
-    texts = []
-    real_text = drive._text
-    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real_text(img, text, *a, **k)))
+    texts = _spy_text(monkeypatch)
     end_shown = []
-    orig_card = drive.card
+    orig_card = screens.card
 
     def card(size, title, lines):  # on the end screen: a stray arrow and a letter first, Enter only 0.6 s later
         if title == "Trial saved":
@@ -128,11 +140,11 @@ def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_on
             threading.Timer(0.6, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_RETURN))).start()
         return orig_card(size, title, lines)
 
-    monkeypatch.setattr(drive, "card", card)
+    monkeypatch.setattr(screens, "card", card)  # the end screen's (hmi.screens)
     plan = {2: [(down, pygame.K_RETURN)],  # the keys screen
             3: [(down, pygame.K_UP)],  # during "3": held through the countdown
             12: [(down, pygame.K_LEFT)], 14: [(up, pygame.K_LEFT)], 20: [(up, pygame.K_UP)],
-            30: [(down, pygame.K_ESCAPE)], 34: [(down, pygame.K_ESCAPE)]}
+            30: [(down, pygame.K_ESCAPE)], 31: [(down, pygame.K_ESCAPE)]}  # paused: no new picture after the question
     captions = []
     result, shown, lines = _interactive(tmp_path, plan, captions=captions)
     t_end = time.monotonic()
@@ -254,7 +266,8 @@ def test_a_crash_under_end_is_shown_and_flagged_not_completed(tmp_path):
     assert t_crash == pytest.approx(trial.steps["t_s"].max()) and t_crash < 2.4
     assert [e["t_s"] for e in trial.collisions] == [pytest.approx(t_crash)]
     banner = [f for f in frames if (f[int(f.shape[0] * 0.22) + 2] == (200, 20, 20)).all(axis=-1).mean() > 0.5]
-    assert len(banner) >= 20  # the banner stayed up after the end (at up to 60 frames/s)
+    # the flash is a new picture every window frame, the banner after it one picture (drawn once, not redrawn)
+    assert len(banner) >= 5 and not any(banner[i] is banner[i + 1] for i in range(len(banner) - 1))
     assert time.monotonic() - t0 > t_crash + CRASH_BANNER_S - 0.2
     assert "1 crash," in lines[0] and "ended_by_collision" in lines[0]
     # the report takes it as data, flagged: cut short by a collision, never silently paired
@@ -332,9 +345,7 @@ def test_the_quit_question_and_the_pause_text_do_not_overlap(size):
 
 
 def test_the_quit_question_replaces_the_pause_text(monkeypatch):
-    texts = []
-    real = drive._text
-    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real(img, text, *a, **k)))
+    texts = _spy_text(monkeypatch)
     snap = drive._Snapshot(np.zeros((270, 480, 3), np.uint8), None, Hud(90, 2, 3, 30, "Trial 1", True), None, 3)
     trial = types.SimpleNamespace(paused=True, confirm_quit=False)
     drive._window_frame(trial, snap)
@@ -391,6 +402,50 @@ def test_the_frame_is_scaled_to_a_resized_window_and_to_fullscreen():
         pygame.quit()
 
 
+def _count_flips(monkeypatch):
+    flips = []
+    real = pygame.display.flip
+    monkeypatch.setattr(pygame.display, "flip", lambda: (flips.append(time.monotonic()), real())[1])
+    return flips
+
+
+def test_an_unchanged_picture_is_not_flipped_again_but_a_new_one_a_resize_and_an_expose_are(monkeypatch):
+    flips = _count_flips(monkeypatch)
+    img = np.full((180, 320, 3), 40, np.uint8)
+    seen = []
+    try:
+        win = _Window((320, 180), on_frame=seen.append)
+        assert win.show(img) is True and win.show(img) is False and win.show(img) is False
+        assert len(flips) == 1 and seen == [img]
+        same_content = img.copy()  # another picture (the window does not compare pixels)
+        assert win.show(same_content) is True and win.show(same_content) is False and len(flips) == 2
+        pygame.display.set_mode((640, 480), pygame.RESIZABLE)  # as the window manager would resize it
+        pygame.event.post(pygame.event.Event(pygame.WINDOWSIZECHANGED, x=640, y=480))
+        win.events()
+        assert win.show(same_content) is True and len(flips) == 3  # the new size: drawn again
+        pygame.event.post(pygame.event.Event(pygame.WINDOWEXPOSED))
+        win.events()
+        assert win.show(same_content) is True and win.show(same_content) is False and len(flips) == 4
+        assert len(seen) == 4 == win.flips
+    finally:
+        pygame.quit()
+
+
+def test_a_trial_flips_once_per_simulation_step_while_keys_are_read_at_the_window_rate(tmp_path, monkeypatch):
+    flips = _count_flips(monkeypatch)
+    events = []
+    real_get = pygame.event.get
+    monkeypatch.setattr(pygame.event, "get", lambda *a, **k: (events.append(1), real_get(*a, **k))[1])
+    result = run_drive(_opts(tmp_path, keys_from=KeyScript([KeyEvent(0.2, True, "UP")]), duration_s=2.0, fps=60),
+                       say=lambda _: None)
+    n_steps = round(result["trial_sim_s"] * 15)
+    assert result["status"] == "completed" and 30 <= n_steps <= 31
+    # 15 Hz for 2 s: the picture of t = 0 and of each step, each flipped once (no crash in this trial)
+    assert len(flips) == result["frames"] == len(result["frame_ms"]) <= n_steps + 1
+    assert len(flips) >= 25  # every step's picture was shown (some may be passed over under load)
+    assert len(events) > 2 * len(flips)  # the events were read at up to 60 frames/s meanwhile
+
+
 def test_trials_simulate_at_30_hz_unless_told_otherwise(tmp_path):
     cfg, overrides, f = _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml"))
     assert f == 30 and cfg.highway.simulation_frequency == 30 and cfg.highway.policy_frequency == 30
@@ -425,9 +480,7 @@ def test_the_mirror_hook_draws_what_render_mirrors_returns(tmp_path, monkeypatch
 
 
 def test_compose_frame_never_draws_the_condition(monkeypatch):
-    texts = []
-    real = drive._text
-    monkeypatch.setattr(drive, "_text", lambda img, text, *a, **k: (texts.append(text), real(img, text, *a, **k)))
+    texts = _spy_text(monkeypatch)
     compose_frame(np.zeros((270, 480, 3), np.uint8), None, Hud(100.0, 1, 3, 12.0, "Trial 1"))
     assert "Trial 1" in texts and not any("adas" in t.lower() or "baseline" in t.lower() for t in texts)
 

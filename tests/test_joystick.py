@@ -114,6 +114,20 @@ def test_calibration_round_trip_and_one_line_errors(tmp_path):
         JoystickInput(FakeDevice([0.0, 0.0]), CAL)
 
 
+def test_a_bad_calibration_file_fails_in_one_line_word_for_word(tmp_path):
+    missing, folder, bad = tmp_path / "none.json", tmp_path / "dir.json", tmp_path / "bad.json"
+    folder.mkdir()
+    bad.write_text('{"steer": ,}')
+    for path, expected in [
+        (missing, f"calibration file not found: {missing} (make one with the calibration screen)"),
+        (folder, f"cannot read the calibration file {folder}: [Errno 21] Is a directory: '{folder}'"),
+        (bad, f"calibration file {bad} is not valid JSON (Expecting value, line 1)"),
+    ]:
+        with pytest.raises(ConfigError) as err:
+            Calibration.load(path)
+        assert str(err.value) == expected
+
+
 def test_recorder_finds_the_axes_the_ends_and_an_inverted_wheel():
     rec = CalibrationRecorder(4)
     for _ in range(5):

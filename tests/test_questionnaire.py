@@ -111,6 +111,23 @@ def test_a_bad_definition_is_one_line_naming_the_key(tmp_path, edit, message):
     assert "\n" not in str(err.value)
 
 
+def test_an_unreadable_definition_file_fails_in_one_line_word_for_word(tmp_path):
+    missing, folder, bad, latin = (tmp_path / n for n in ("none.toml", "dir.toml", "bad.toml", "latin.toml"))
+    folder.mkdir()
+    bad.write_text("name = \n")
+    latin.write_bytes(b'name = "caf\xe9"\n')
+    for path, expected in [
+        (missing, f"questionnaire file {missing} does not exist"),
+        (folder, f"questionnaire file {folder} cannot be read ([Errno 21] Is a directory: '{folder}')"),
+        (latin, (f"questionnaire file {latin} cannot be read ('utf-8' codec can't decode byte 0xe9 in position 11: "
+                 "invalid continuation byte)")),
+        (bad, f"questionnaire file {bad} is not valid TOML (Invalid value (at line 1, column 8))"),
+    ]:
+        with pytest.raises(ConfigError) as err:
+            load_questionnaire(path)
+        assert str(err.value) == expected
+
+
 def test_a_lab_file_loads_by_path_and_a_wrong_name_lists_the_known_ones(tmp_path):
     path = _lab_file(tmp_path, lambda t: t.replace('name = "trust_jian2000"', 'name = "lab_trust"')
                      .replace('scoring = "mean"', 'scoring = "sum"'))

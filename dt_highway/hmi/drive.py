@@ -7,8 +7,9 @@ drawn on it (:func:`dt_highway.overlay.draw_overlay`, from the fusion's output o
 highway-env's top-down view as a mini-map (M toggles it) and, with ``mirrors``, the rear-view
 mirror image of :func:`dt_highway.camera.mirror.render_mirrors`. The
 simulation is locked to the wall clock at its configured frequency (trials default to
-:data:`TRIAL_SIMULATION_HZ`, one decision per simulation step); the window redraws at up to
-``fps`` frames per second, the composed picture scaled to the window (resizable, or fullscreen).
+:data:`TRIAL_SIMULATION_HZ`, one decision per simulation step); the window reads its events (the keys)
+at up to ``fps`` frames per second and draws the composed picture, scaled to the window (resizable,
+or fullscreen), only when it changed: at most once per simulation step outside the crash flash.
 
 Input: keys held through the 3-2-1 countdown act at t = 0 and are logged as pressed at t = 0
 (``pressed_at_s``: when, before the start). A key is logged at the moment the window received it
@@ -34,21 +35,17 @@ Headless: ``SDL_VIDEODRIVER=offscreen``.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import queue
 import re
-import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from types import FrameType
-from typing import Any, Self
+from typing import Any
 
 import cv2
 import gymnasium as gym
@@ -59,58 +56,48 @@ from dt_highway.camera.mirror import render_mirrors
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
+from dt_highway.hmi.crash import (
+    CRASH_BANNER_S,
+    CRASH_FLASH_S,
+    CRASH_POLICIES,
+    CrashBeep,
+    CrashView,
+    beep_samples,
+    crash_layer,
+    place_ego_after_crash,
+)
 from dt_highway.hmi.joystick import Calibration, CalibrationError, JoystickInput, calibration_screen, open_joystick
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
-from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
-from dt_highway.overlay import draw_overlay
-
-LEGEND = (
-    ("Up", "throttle (hold)"),
-    ("Down", "brake (hold)"),
-    ("Left / Right", "change lane"),
-    ("M", "mini-map on / off"),
-    ("P", "pause"),
-    ("Esc", "quit (asks first)"),
+from dt_highway.hmi.picture import MIRROR_FRACTION, Hud, compose_frame, hud_band_height
+from dt_highway.hmi.screens import (
+    END_SCREEN_S,
+    LEGEND,
+    PAUSE_LINES,
+    QUIT_LINES,
+    _end_screen,
+    _start_screens,
+    card,
+    dialog,
+    show_card,
 )
-"""The keys, as shown before a trial"""
+from dt_highway.hmi.window import DRIVING_KEYS, PYGAME_KEYS, WINDOW_TITLE, SignalScope, _key_names, _Signals, _Window
+from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 
-WINDOW_TITLE = "dt-highway"
-"""The window's title (never the condition)"""
+__all__ = [  # this module's own, and (re-exported) what the split of this module moved to crash, picture, screens and window
+    "CRASH_BANNER_S", "CRASH_FLASH_S", "CRASH_POLICIES", "DRIVING_KEYS", "END_SCREEN_S", "LEGEND", "MIRROR_FRACTION",
+    "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep",
+    "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame", "crash_layer", "dialog", "drive_config",
+    "held_at_start", "hud_band_height", "open_wheel", "parse_size", "place_ego_after_crash", "run_drive", "show_card",
+    "trial_dir", "wall_time", "wheel_calibration_path", "wheel_text",
+]
 
 TRIAL_SIMULATION_HZ = 30
 """Keyboard trials' simulation frequency unless told otherwise [Hz] (``highway.simulation_frequency``;
 ``highway.policy_frequency`` follows it). ``dt-highway bench drive`` here (2 cores, load ~0.5): 30 Hz kept real
 time at 640x360 and 1280x720 (simulated / wall 0.999, 61 frames/s, frame p99 5.2 / 11.4 ms)"""
 
-CRASH_POLICIES = ("end", "continue")
-"""What a crash does to a keyboard trial: end it, or put the ego back on the road and go on"""
-
-CRASH_BANNER_S = 1.5
-"""How long the "COLLISION" banner stays up [s of wall time]"""
-
-CRASH_FLASH_S = 0.5
-"""How long the red flash takes to fade [s of wall time]"""
-
 SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
 """Allowed window sizes: (width min, max), (height min, max) [px]"""
-
-MIRROR_FRACTION = (0.6, 0.17)
-"""The mirror image's size asked for, as fractions of the frame's width and height"""
-
-DRIVING_KEYS = ("UP", "DOWN", "LEFT", "RIGHT")
-"""The keys that carry over from the countdown into the trial"""
-
-END_SCREEN_S = 10.0
-"""The "Trial saved" screen goes by itself after this long [s] (else only Enter dismisses it)"""
-
-QUIT_LINES = ("Quit the trial?", "Esc: quit", "any other key: go on")
-"""The question asked on the first Esc"""
-
-PAUSE_LINES = ("PAUSED", "P: go on")
-"""The pause screen's text"""
-
-_ENTER = (pygame.K_RETURN, pygame.K_KP_ENTER)
-_AMBER = (255, 230, 120)
 
 
 def wall_time(t_mono: float | None = None) -> str:
@@ -156,194 +143,6 @@ def drive_config(condition: str, steering: bool = False) -> dict[str, Any]:
 
 
 @dataclass
-class Hud:
-    """What the HUD shows.
-
-    :param speed_kmh: ego speed [km/h]
-    :param lane: lane number, 1 = leftmost
-    :param n_lanes: lanes on the road
-    :param time_left_s: trial time left [s]
-    :param label: the neutral label of the trial (``Trial 2``, ``Practice``): never the condition's name
-    :param paused: the trial is paused
-    """
-
-    speed_kmh: float
-    lane: int
-    n_lanes: int
-    time_left_s: float
-    label: str = "Trial"
-    paused: bool = False
-
-
-def _text(img: np.ndarray, text: str, org: tuple[int, int], scale: float, colour: tuple[int, int, int] = (255, 255, 255),
-          thick: int = 1, shadow: bool = True) -> None:
-    font = cv2.FONT_HERSHEY_DUPLEX
-    if shadow:
-        cv2.putText(img, text, (org[0] + 1, org[1] + 1), font, scale, (0, 0, 0), thick + 1, cv2.LINE_AA)
-    cv2.putText(img, text, org, font, scale, colour, thick, cv2.LINE_AA)
-
-
-def _scale(h: int) -> float:
-    return max(h / 720.0, 0.35)
-
-
-def dialog(img: np.ndarray, lines: Iterable[str], colour: tuple[int, int, int] = _AMBER) -> list[tuple[int, int, int, int]]:
-    """Draw a box with centred lines of text in the middle of ``img`` (in place): the first line
-    large, the others smaller, one below the other.
-
-    :param img: ``uint8 (H, W, 3)`` RGB
-    :param lines: the text
-    :param colour: the first line's colour (RGB)
-    :return: each line's box ``(x0, y0, x1, y1)`` [px] (they never overlap)
-    """
-    h, w = img.shape[:2]
-    s = _scale(h)
-    font = cv2.FONT_HERSHEY_DUPLEX
-    styles = [(1.4 * s, max(1, round(3 * s))) if i == 0 else (0.95 * s, max(1, round(2 * s))) for i, _ in enumerate(lines)]
-    texts = list(lines)
-    sizes = [cv2.getTextSize(t, font, sc, th) for t, (sc, th) in zip(texts, styles, strict=True)]
-    gap, pad = max(4, int(18 * s)), max(6, int(24 * s))
-    heights = [ch + base + th for ((_, ch), base), (_, th) in zip(sizes, styles, strict=True)]
-    box_w = max(cw for (cw, _), _ in sizes) + 2 * pad
-    box_h = sum(heights) + gap * (len(texts) - 1) + 2 * pad
-    x0, y0 = max((w - box_w) // 2, 0), max((h - box_h) // 2, 0)
-    region = img[y0:y0 + box_h, x0:x0 + box_w]
-    region[:] = (region * 0.2).astype(np.uint8)
-    cv2.rectangle(img, (x0, y0), (x0 + box_w - 1, y0 + box_h - 1), colour, 1)
-    rects = []
-    y = y0 + pad
-    for i, (text, ((cw, ch), _base), (sc, th), lh) in enumerate(zip(texts, sizes, styles, heights, strict=True)):
-        x = (w - cw) // 2
-        _text(img, text, (x, y + ch + th // 2), sc, colour if i == 0 else (255, 255, 255), thick=th, shadow=False)
-        rects.append((x, y, x + cw, y + lh))
-        y += lh + gap
-    return rects
-
-
-def crash_layer(img: np.ndarray, age_s: float) -> np.ndarray:
-    """The crash feedback over a frame: a red flash fading over :data:`CRASH_FLASH_S` and a
-    "COLLISION" banner for :data:`CRASH_BANNER_S` after the crash.
-
-    :param img: the composed frame ``uint8 (H, W, 3)`` RGB (not changed)
-    :param age_s: time since the crash [s]
-    :return: the frame with the feedback (``img`` itself when the crash is older than the banner)
-    """
-    if not 0.0 <= age_s < CRASH_BANNER_S:
-        return img
-    out = img.copy()
-    if age_s < CRASH_FLASH_S:
-        alpha = 0.5 * (1.0 - age_s / CRASH_FLASH_S)
-        red = np.zeros_like(out)
-        red[..., 0] = 255
-        out = cv2.addWeighted(out, 1.0 - alpha, red, alpha, 0.0)
-    h, w = out.shape[:2]
-    s = _scale(h)
-    band_h = max(24, int(90 * s))
-    y0 = int(h * 0.22)
-    out[y0:y0 + band_h] = (200, 20, 20)
-    th = max(1, round(4 * s))
-    (cw, ch), _ = cv2.getTextSize("COLLISION", cv2.FONT_HERSHEY_DUPLEX, 2.0 * s, th)
-    _text(out, "COLLISION", ((w - cw) // 2, y0 + (band_h + ch) // 2), 2.0 * s, thick=th, shadow=False)
-    return out
-
-
-def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
-                  minimap: np.ndarray | None = None, mirror: np.ndarray | None = None) -> np.ndarray:
-    """The picture the participant sees: the camera frame, the marks (overlay conditions), the
-    HUD, the mini-map and the rear-view mirror. Used by the window and by the screenshots, so
-    both show the same.
-
-    :param rgb: camera frame ``uint8 (H, W, 3)``
-    :param marks: the overlay's marks, or ``None`` (baseline: nothing drawn)
-    :param hud: the HUD's values
-    :param minimap: highway-env's top-down view, or ``None`` (hidden)
-    :param mirror: the rear-view mirror image ``uint8 (h, w, 3)``, or ``None``; drawn at the top centre
-    :return: ``uint8 (H, W, 3)`` RGB
-    """
-    out = draw_overlay(rgb, marks) if marks else np.ascontiguousarray(rgb).copy()
-    h, w = out.shape[:2]
-    s = _scale(h)
-    pad = int(16 * s)
-    t1, t2, t4 = max(1, round(1.5 * s)), max(1, round(2 * s)), max(1, round(4 * s))
-    small = None
-    if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
-        small = cv2.resize(minimap, _minimap_size(w, minimap), interpolation=cv2.INTER_AREA)
-    band_h = hud_band_height((w, h), minimap)
-    band = out[h - band_h:, :]
-    band[:] = (band * 0.45).astype(np.uint8)
-    base = h - band_h // 2
-    _text(out, f"{hud.speed_kmh:3.0f}", (pad, base + int(38 * s)), 2.6 * s, thick=t4, shadow=False)
-    _text(out, "km/h", (pad + int(175 * s), base + int(38 * s)), 0.9 * s, thick=t2, shadow=False)
-    _text(out, f"lane {hud.lane} of {hud.n_lanes}", (pad + int(300 * s), base - int(6 * s)), 1.0 * s, thick=t1, shadow=False)
-    mins, secs = divmod(max(int(math.ceil(hud.time_left_s)), 0), 60)
-    _text(out, f"time left {mins}:{secs:02d}", (pad + int(300 * s), base + int(34 * s)), 1.0 * s, thick=t1, shadow=False)
-    if small is not None:
-        th, tw = small.shape[:2]
-        x0, y0 = w - tw - pad, h - band_h + (band_h - th) // 2
-        out[y0:y0 + th, x0:x0 + tw] = small
-        cv2.rectangle(out, (x0 - 1, y0 - 1), (x0 + tw, y0 + th), (200, 200, 200), 1)
-    if mirror is not None:
-        _draw_mirror(out, mirror, pad)
-    (cw, ch), _ = cv2.getTextSize(hud.label, cv2.FONT_HERSHEY_DUPLEX, 0.9 * s, t1)
-    cv2.rectangle(out, (pad // 2, pad // 2), (pad + cw + pad // 2, pad + ch + pad // 2), (0, 0, 0), -1)
-    _text(out, hud.label, (pad, pad + ch), 0.9 * s, _AMBER, thick=t1, shadow=False)
-    if hud.paused:
-        dialog(out, PAUSE_LINES)
-    return out
-
-
-def _minimap_size(w: int, minimap: np.ndarray) -> tuple[int, int]:
-    """The mini-map's size in a frame ``w`` pixels wide: ``(width, height)`` [px]."""
-    mh, mw = minimap.shape[:2]
-    tw = int(w * 0.36)
-    return tw, max(1, int(mh * tw / mw))
-
-
-def hud_band_height(size: tuple[int, int], minimap: np.ndarray | None = None) -> int:
-    """The height of the HUD's band at the bottom of a frame of :func:`compose_frame`.
-
-    :param size: the frame's ``(width, height)`` [px]
-    :param minimap: the mini-map drawn in it, or ``None``
-    :return: the band's height [px]
-    """
-    w, h = size
-    s = _scale(h)
-    if minimap is None:
-        return int(110 * s)
-    return max(int(110 * s), _minimap_size(w, minimap)[1] + 2 * int(16 * s))
-
-
-def _draw_mirror(out: np.ndarray, mirror: np.ndarray, pad: int) -> None:
-    """The rear-view mirror at the top centre of ``out`` (in place), framed, clipped to the frame."""
-    h, w = out.shape[:2]
-    img = np.asarray(mirror)[: h // 2, : w - 2 * pad, :3]
-    mh, mw = img.shape[:2]
-    if mh == 0 or mw == 0:
-        return
-    x0, y0 = (w - mw) // 2, max(pad // 2, 2)
-    out[y0:y0 + mh, x0:x0 + mw] = img
-    cv2.rectangle(out, (x0 - 2, y0 - 2), (x0 + mw + 1, y0 + mh + 1), (20, 20, 20), 2)
-
-
-def card(size: tuple[int, int], title: str, lines: list[str]) -> np.ndarray:
-    """A plain screen with a title and lines of text (start, break and end screens).
-
-    :param size: ``(width, height)`` [px]
-    :param title: the title
-    :param lines: the text; a tab splits a line into two columns (the keys' legend)
-    """
-    w, h = size
-    out = np.full((h, w, 3), 28, np.uint8)
-    s = _scale(h)
-    _text(out, title, (int(40 * s), int(90 * s)), 1.6 * s, _AMBER, thick=max(1, round(3 * s)), shadow=False)
-    for i, line in enumerate(lines):
-        y = int((160 + 48 * i) * s)
-        for col, part in enumerate(line.split("\t", 1)):
-            _text(out, part, (int((40 + 320 * col) * s), y), 0.95 * s, thick=max(1, round(2 * s)), shadow=False)
-    return out
-
-
-@dataclass
 class DriveOptions:
     """One keyboard trial.
 
@@ -359,7 +158,8 @@ class DriveOptions:
         pressed during the countdown)
     :param screenshot_every_s: save a screenshot this often [s of trial time] (``None``: never)
     :param screenshots: where screenshots go (default ``<trial>/screenshots``)
-    :param fps: most window frames per second
+    :param fps: most window frames per second: how often keys are read [1/s]; a picture is drawn only when
+        it changed (at most the simulation rate, outside the crash flash)
     :param minimap: show the mini-map at the start
     :param steering: Left/Right steer (self-centring) instead of changing lanes
     :param display_label: what the participant is told the trial is (``Trial 2``...): never the condition's
@@ -407,285 +207,11 @@ class DriveOptions:
         return "Practice" if self.practice and self.display_label == "Trial" else self.display_label
 
 
-PYGAME_KEYS = {"UP": "K_UP", "DOWN": "K_DOWN", "LEFT": "K_LEFT", "RIGHT": "K_RIGHT", "P": "K_p", "ESC": "K_ESCAPE",
-               "M": "K_m"}
-
-
-def _key_names() -> dict[int, str]:
-    return {getattr(pygame, v): k for k, v in PYGAME_KEYS.items()}
-
-
 def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Path:
     """Where a keyboard trial is logged."""
     return Path(out) / "trials" / f"{participant}-{'practice' if practice else condition}"
 
 
-# ------------------------------------------------------------------------------------------ signals
-class SignalScope:
-    """SIGTERM and SIGINT go to :meth:`_handle` inside the ``with`` block (installed from the main
-    thread only); the previous handlers come back after it. ``received`` is for the first signal's name."""
-
-    def __init__(self) -> None:
-        self.received: str | None = None
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> Self:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-        self._old.clear()
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        raise NotImplementedError
-
-
-class _Signals(SignalScope):
-    """SIGTERM and SIGINT while the window is up: handed to the running trial as its end (logged
-    as such), else noted so that the screens stop waiting. Installed before SDL starts, which
-    would otherwise turn SIGTERM into a window close."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.trial: _Trial | None = None
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        name = signal.Signals(signum).name
-        self.received = self.received or name
-        trial = self.trial
-        if trial is not None and not trial.done:
-            trial.inputs.put(("signal", name, time.monotonic()))
-
-
-# ------------------------------------------------------------------------------------------ the window
-class _Window:
-    """The trial's pygame window: frames are composed at the camera's size and shown scaled to
-    the window (aspect kept, black bars); every frame shown also goes to ``on_frame``.
-
-    :param size: the composed frames' size ``(width, height)`` [px]
-    :param fullscreen: fill the screen
-    :param on_frame: called with every frame shown (unscaled)
-    :param signals: SIGTERM/SIGINT seen while the window is up
-    """
-
-    def __init__(self, size: tuple[int, int], fullscreen: bool = False,
-                 on_frame: Callable[[np.ndarray], None] | None = None, signals: _Signals | None = None) -> None:
-        pygame.display.init()
-        self.size = size
-        self.fullscreen = fullscreen
-        self.screen = pygame.display.set_mode((0, 0), pygame.FULLSCREEN) if fullscreen \
-            else pygame.display.set_mode(size, pygame.RESIZABLE)
-        pygame.display.set_caption(WINDOW_TITLE)
-        self.clock = pygame.time.Clock()
-        self.on_frame = on_frame
-        self.signals = signals or _Signals()
-        self.closed = False
-        self._cache: tuple[np.ndarray, tuple[int, int], pygame.Surface] | None = None
-
-    @property
-    def stopped(self) -> bool:
-        """The window was closed or a signal came."""
-        return self.closed or self.signals.received is not None
-
-    def events(self) -> list[pygame.event.Event]:
-        """The window's events (a close is noted in :attr:`closed`, a resize redraws)."""
-        evs = pygame.event.get()
-        for ev in evs:
-            if ev.type == pygame.QUIT:
-                self.closed = True
-            elif ev.type in (pygame.VIDEORESIZE, pygame.WINDOWSIZECHANGED):
-                self.screen = pygame.display.get_surface() or self.screen
-        return evs
-
-    def _surface(self, img: np.ndarray) -> tuple[pygame.Surface, tuple[int, int]]:
-        """``img`` scaled to fit the window (cached for the same image and window size) and where it goes."""
-        win = self.screen.get_size()
-        if self._cache is None or self._cache[0] is not img or self._cache[1] != win:
-            h, w = img.shape[:2]
-            k = min(win[0] / w, win[1] / h)
-            tw, th = max(1, round(w * k)), max(1, round(h * k))
-            scaled = img if (tw, th) == (w, h) else cv2.resize(img, (tw, th), interpolation=cv2.INTER_LINEAR)
-            surf = pygame.image.frombuffer(np.ascontiguousarray(scaled).tobytes(), (tw, th), "RGB")
-            self._cache = (img, win, surf)
-        surf = self._cache[2]
-        return surf, ((win[0] - surf.get_width()) // 2, (win[1] - surf.get_height()) // 2)
-
-    def show(self, img: np.ndarray) -> None:
-        """Put ``img`` on the window, scaled."""
-        surf, at = self._surface(img)
-        if surf.get_size() != self.screen.get_size():
-            self.screen.fill((0, 0, 0))
-        self.screen.blit(surf, at)
-        pygame.display.flip()
-        if self.on_frame is not None:
-            self.on_frame(img)
-
-    def wait_key(self, img: np.ndarray, keys: tuple[int, ...], seconds: float | None = None) -> int | None:
-        """Show ``img`` until one of ``keys`` (any key when empty) is pressed or ``seconds`` pass.
-
-        :return: the key pressed; ``None`` after ``seconds`` or when the window was closed or a signal came
-        """
-        self.show(img)
-        t_end = None if seconds is None else time.monotonic() + seconds
-        while t_end is None or time.monotonic() < t_end:
-            for ev in self.events():
-                if ev.type in (pygame.VIDEORESIZE, pygame.WINDOWSIZECHANGED):
-                    self.show(img)
-                elif ev.type == pygame.KEYDOWN and (not keys or ev.key in keys):
-                    return int(ev.key)
-            if self.stopped:
-                return None
-            self.clock.tick(30)
-        return None
-
-
-def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: float | None = None,
-              fullscreen: bool = False) -> bool:
-    """Show a screen (e.g. a break between trials) until Enter is pressed.
-
-    :param size: window size ``(width, height)`` [px]
-    :param timeout_s: give up waiting after this long (``None``: wait for Enter)
-    :param fullscreen: fill the screen
-    :return: ``False`` when the participant pressed Esc, closed the window or a signal came
-    """
-    with _Signals() as signals:
-        try:
-            win = _Window(size, fullscreen, signals=signals)
-            key = win.wait_key(card(size, title, lines), (*_ENTER, pygame.K_ESCAPE), timeout_s)
-            return key != pygame.K_ESCAPE and not win.stopped
-        finally:
-            pygame.quit()
-
-
-# ------------------------------------------------------------------------------------------ sound
-@contextlib.contextmanager
-def _quiet_stderr() -> Iterator[None]:
-    """Silence C libraries' messages on stderr (ALSA's when there is no sound card)."""
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
-class CrashBeep:
-    """A short two-tone beep (numpy, through :mod:`pygame.sndarray`) for crashes; silent when
-    there is no sound device or the mixer cannot start (never an error).
-
-    :param enabled: try to make a sound at all
-    :param freq_hz: the first tone [Hz] (the second is a fourth lower)
-    :param duration_s: length [s]
-    """
-
-    def __init__(self, enabled: bool = True, freq_hz: float = 880.0, duration_s: float = 0.35) -> None:
-        self.sound: pygame.mixer.Sound | None = None
-        if not enabled:
-            return
-        try:
-            with _quiet_stderr():
-                if not pygame.mixer.get_init():
-                    pygame.mixer.init()
-            init = pygame.mixer.get_init()
-            if init:
-                self.sound = pygame.sndarray.make_sound(beep_samples(init[0], init[1], init[2], freq_hz, duration_s))
-        except (pygame.error, ValueError, TypeError, NotImplementedError):
-            self.sound = None
-
-    def play(self) -> bool:
-        """Play it.
-
-        :return: whether a sound was started
-        """
-        if self.sound is None:
-            return False
-        try:
-            self.sound.play()
-        except pygame.error:
-            return False
-        return True
-
-
-def beep_samples(rate_hz: int, size: int, channels: int, freq_hz: float = 880.0, duration_s: float = 0.35) -> np.ndarray:
-    """The crash beep's samples in the mixer's format: two tones (``freq_hz``, then a fourth
-    lower) with 10 ms fades, at 40 % of full scale.
-
-    :param rate_hz: sample rate [Hz]
-    :param size: pygame's sample format (``-16``: int16, ``32``: float32, ``8``/``-8``: 8 bit)
-    :param channels: channels [-]
-    :return: ``(n,)`` for one channel, else ``(n, channels)``
-    :raises ValueError: on a sample format it does not write
-    """
-    n = max(1, round(rate_hz * duration_s))
-    t = np.arange(n) / rate_hz
-    f = np.where(t < duration_s / 2, freq_hz, freq_hz * 0.75)
-    wave = np.sin(2 * np.pi * f * t)
-    ramp = np.clip(np.minimum(t, duration_s - t) / 0.01, 0.0, 1.0)
-    x = 0.4 * wave * ramp
-    if size == -16:
-        data = (x * 32767).astype(np.int16)
-    elif size == 32:
-        data = x.astype(np.float32)
-    elif size == -8:
-        data = (x * 127).astype(np.int8)
-    elif size == 8:
-        data = (x * 127 + 128).astype(np.uint8)
-    else:
-        raise ValueError(f"sample format {size} is not written")
-    return data if channels == 1 else np.repeat(data[:, None], channels, axis=1)
-
-
-# ------------------------------------------------------------------------------------------ crashes
-def place_ego_after_crash(env: DTHighwayEnv, min_gap_m: float = 30.0, headway_s: float = 2.0,
-                          step_m: float = 5.0, search_m: float = 500.0) -> dict[str, float]:
-    """Put a crashed ego back on the road: in its lane, ahead of every crashed vehicle (they stop
-    and are towed away by the traffic), with a clear gap to the vehicles in (or entering) the lane
-    ahead and behind, at the speed of traffic around it, heading along the lane, not crashed.
-
-    :param env: the env (its ego is moved)
-    :param min_gap_m: smallest clear gap ahead and behind [m]
-    :param headway_s: the gap is at least this headway at the new speed [s]
-    :param step_m: search step along the lane [m]
-    :param search_m: how far ahead to search for a clear place [m]
-    :return: ``x_m`` (new position), ``moved_m`` (along the lane), ``lane`` (1 = leftmost), ``speed_mps``
-    """
-    road, ego = env.road, env.vehicle
-    lane_index = ego.lane_index
-    lane = road.network.get_lane(lane_index)
-    s_ego = float(lane.local_coordinates(ego.position)[0])
-    others = [v for v in road.vehicles if v is not ego]
-    near = [float(v.speed) for v in others if not v.crashed and abs(float(v.position[0] - ego.position[0])) < 150.0]
-    speed = float(np.median(near)) if near else max(float(ego.speed), 20.0)
-    gap = max(min_gap_m, headway_s * speed)
-    crashed = [float(lane.local_coordinates(v.position)[0]) for v in others if v.crashed]
-    start = max([s_ego, *(s + gap for s in crashed)])
-    in_lane = [float(lane.local_coordinates(v.position)[0]) for v in others
-               if lane_index in (v.lane_index, getattr(v, "target_lane_index", None))]
-    s = start
-    while s < start + search_m and any(abs(x - s) < gap for x in in_lane):
-        s += step_m
-    ego.position = np.asarray(lane.position(s, 0.0), dtype=float)
-    ego.heading = float(lane.heading_at(s))
-    ego.speed = speed
-    ego.crashed = False
-    ego.impact = None
-    ego.lane_index, ego.lane = lane_index, lane
-    if hasattr(ego, "target_lane_index"):
-        ego.target_lane_index = lane_index
-    return {"x_m": float(ego.position[0]), "moved_m": s - s_ego, "lane": int(lane_index[2]) + 1, "speed_mps": speed}
-
-
-# ------------------------------------------------------------------------------------------ the trial
 class _ClockedWriter(TrialWriter):
     """The trial writer with the wall clock on every event (``wall_time``, ISO 8601 UTC; when the
     event does not bring its own, the moment it is written)."""
@@ -1047,45 +573,6 @@ def _wheel_input(opts: DriveOptions, device: pygame.joystick.JoystickType,
         raise ConfigError(f"--wheel-calibration {path}: {err}") from None
 
 
-def _countdown(win: _Window) -> list[KeyEvent] | None:
-    """3-2-1, one second each, noting the driving keys pressed and released meanwhile.
-
-    :return: those key events, at negative trial times [s] (t = 0 is the end of the countdown);
-        ``None`` when the window was closed or a signal came
-    """
-    names = _key_names()
-    t_end = time.monotonic() + 3.0
-    events: list[KeyEvent] = []
-    pressed = pygame.key.get_pressed()  # a key already held on the keys screen (a real keyboard)
-    events += [KeyEvent(-3.0, True, k) for k, v in PYGAME_KEYS.items() if k in DRIVING_KEYS and pressed[getattr(pygame, v)]]
-    for n in (3, 2, 1):
-        img = card(win.size, str(n), ["get ready"])
-        win.show(img)
-        while time.monotonic() < t_end - (n - 1):
-            for ev in win.events():
-                if ev.type in (pygame.VIDEORESIZE, pygame.WINDOWSIZECHANGED):
-                    win.show(img)
-                elif ev.type in (pygame.KEYDOWN, pygame.KEYUP) and names.get(ev.key) in DRIVING_KEYS:
-                    events.append(KeyEvent(round(time.monotonic() - t_end, 4), ev.type == pygame.KEYDOWN, names[ev.key]))
-            if win.stopped:
-                return None
-            win.clock.tick(60)
-    return events
-
-
-def _start_screens(win: _Window, label: str) -> list[KeyEvent] | None:
-    """The keys, until Enter, then a count-down.
-
-    :return: the key events of the countdown (:func:`_countdown`); ``None`` when the participant
-        pressed Esc, closed the window or a signal came instead
-    """
-    legend = [f"{k}\t{v}" for k, v in LEGEND]
-    key = win.wait_key(card(win.size, f"{label}: the keys", [*legend, "", "Press Enter to start"]), (*_ENTER, pygame.K_ESCAPE))
-    if key is None or key == pygame.K_ESCAPE:
-        return None
-    return _countdown(win)
-
-
 def _pass_events(win: _Window, trial: _Trial, names: dict[int, str], scripted: bool) -> None:
     """Hand the window's key presses and releases (not when a script drives) and its close to the simulation."""
     for ev in win.events():
@@ -1106,22 +593,25 @@ def _window_frame(trial: _Trial, snap: _Snapshot) -> np.ndarray:
     return img
 
 
-def _with_crash(img: np.ndarray, snap: _Snapshot) -> np.ndarray:
-    return img if snap.crash_mono is None else crash_layer(img, time.monotonic() - snap.crash_mono)
+def _with_crash(img: np.ndarray, snap: _Snapshot, view: CrashView) -> np.ndarray:
+    return img if snap.crash_mono is None else view(img, time.monotonic() - snap.crash_mono)
 
 
 def _window_loop(win: _Window, trial: _Trial, sim: threading.Thread, fps: int, scripted: bool,
                  beep: CrashBeep) -> tuple[list[float], np.ndarray | None]:
-    """Redraw the latest simulation step at up to ``fps`` frames per second until the trial is
-    over and its last step shown (or the simulation failed); beep on each new crash.
+    """Read the window's events at up to ``fps`` frames per second and show the latest simulation
+    step's picture when it changed, until the trial is over and its last step shown (or the
+    simulation failed); beep on each new crash.
 
-    :return: each frame's work [ms], and the last picture (without the crash layer)
+    :return: the work of each window frame that put a new picture on the window [ms] (frames that
+        only read events are not counted), and the last picture (without the crash layer)
     """
     names = _key_names()
     frame_ms: list[float] = []
     shown_steps = -1
     heard = 0
     composed: tuple[tuple[Any, ...], np.ndarray] | None = None
+    crash_view = CrashView()
     while True:
         t0 = time.perf_counter()
         _pass_events(win, trial, names, scripted)
@@ -1134,8 +624,8 @@ def _window_loop(win: _Window, trial: _Trial, sim: threading.Thread, fps: int, s
             key = (snap.n_steps, trial.paused, trial.confirm_quit)
             if composed is None or key != composed[0]:  # a step's picture is composed once, shown every frame
                 composed = key, _window_frame(trial, snap)
-            win.show(_with_crash(composed[1], snap))
-            frame_ms.append((time.perf_counter() - t0) * 1e3)
+            if win.show(_with_crash(composed[1], snap, crash_view)):
+                frame_ms.append((time.perf_counter() - t0) * 1e3)
             shown_steps = snap.n_steps
         if trial.done and not sim.is_alive() and (shown_steps == trial.n_steps or trial.error is not None):
             return frame_ms, None if composed is None else composed[1]
@@ -1147,9 +637,10 @@ def _hold_crash_banner(win: _Window, trial: _Trial, last: np.ndarray | None, fps
     when the window was closed or a signal came)."""
     if last is None or trial.crash_mono is None or trial.status != "ended_by_collision":
         return
+    view = CrashView()
     while time.monotonic() - trial.crash_mono < CRASH_BANNER_S and not win.stopped:
         win.events()
-        win.show(crash_layer(last, time.monotonic() - trial.crash_mono))
+        win.show(view(last, time.monotonic() - trial.crash_mono))
         win.clock.tick(fps)
 
 
@@ -1193,14 +684,6 @@ def _collision_meta(trial: _Trial, opts: DriveOptions) -> dict[str, Any]:
             "wall_time": [c["wall_time"] for c in trial.crashes], "policy": opts.on_crash}
 
 
-def _end_screen(win: _Window, trial: _Trial) -> None:
-    """"Trial saved", until Enter (no other key) or :data:`END_SCREEN_S`; not when the window was closed or a signal came."""
-    if win.stopped or trial.end_reason == "window closed":
-        return
-    early = ["The trial ended early: there was a collision.", ""] if trial.status == "ended_by_collision" else []
-    win.wait_key(card(win.size, "Trial saved", [*early, "Thank you.", "", "Press Enter to go on"]), _ENTER, END_SCREEN_S)
-
-
 def _status_line(opts: DriveOptions, directory: Path, status: str, end_reason: str, t_sim: float,
                  duration: float, crashes: int, pauses: int) -> str:
     """The experimenter's one line about a trial (terminal only)."""
@@ -1218,17 +701,22 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     """Run one keyboard trial in a pygame window and log it.
 
     The simulation runs in its own thread, locked to the wall clock; the window (this thread)
-    redraws the latest simulation step at up to ``opts.fps`` frames per second and passes key
-    presses to the simulation, so that drawing never waits for a simulation step.
+    reads key presses at up to ``opts.fps`` frames per second and passes them to the simulation,
+    and puts the latest simulation step's picture on the window when it changed (a new step, the
+    pause or quit question, the crash feedback, a resize), so that drawing never waits for a
+    simulation step and an unchanged picture is not drawn again.
 
     :param opts: the trial
-    :param on_frame: called with every frame shown (tests, recording), at the composed size
+    :param on_frame: called with every picture put on the window (tests, recording), at the composed
+        size: each distinct picture once (screens before and after the trial too), never a repeat
     :param say: where the experimenter's one-line status of the trial goes (default: stderr)
     :return: ``directory``, ``status`` (``completed``, ``ended_by_collision``, ``aborted`` or
-        ``not started``), ``end_reason``, ``frames`` drawn, ``screenshots`` saved, ``frame_ms``: each
-        frame's work (window events, composing and showing the picture; not the wait for the next
-        frame) [ms], ``size_px``, ``trial_wall_s`` and ``trial_sim_s`` (wall and simulated time of
-        the trial [s]), ``collisions`` (count), ``collision_t_s``, ``pauses``
+        ``not started``), ``end_reason``, ``frames``: pictures put on the window during the trial (so
+        ``frames / trial_wall_s`` is pictures shown per second, at most the simulation rate outside the
+        crash flash), ``screenshots`` saved, ``frame_ms``: the work of each of those frames (window
+        events, composing and showing the picture; not the wait for the next frame, and not the
+        frames that only read events) [ms], ``size_px``, ``trial_wall_s`` and ``trial_sim_s`` (wall
+        and simulated time of the trial [s]), ``collisions`` (count), ``collision_t_s``, ``pauses``
     :raises ConfigError: on a bad option (one line)
     """
     if opts.on_crash not in CRASH_POLICIES:
@@ -1277,12 +765,12 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
             if not scripted:
-                _end_screen(win, trial)
+                _end_screen(win, trial.status, trial.end_reason)
         finally:
             sys.setswitchinterval(old_switch)
             env.close()
             pygame.quit()
     return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason,
             "frames": len(frame_ms), "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
-            "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim, "collisions": len(trial.crashes),
-            "collision_t_s": [c["t_s"] for c in trial.crashes], "pauses": trial.pauses}
+            "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim, "simulation_frequency_hz": f_sim,
+            "collisions": len(trial.crashes), "collision_t_s": [c["t_s"] for c in trial.crashes], "pauses": trial.pauses}

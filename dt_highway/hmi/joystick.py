@@ -39,7 +39,7 @@ import numpy as np
 import pygame
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from dt_highway.config import ConfigError, config_error
+from dt_highway.config import config_error, read_user_file
 from dt_highway.hmi.keys import PedalSettings
 
 ROLES = ("steer", "throttle", "brake")
@@ -172,14 +172,10 @@ class Calibration(BaseModel):
             dotted key and what is allowed)
         """
         p = Path(path)
-        try:
-            data = json.loads(p.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"calibration file not found: {p} (make one with the calibration screen)") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise ConfigError(f"cannot read the calibration file {p}: {err}") from None
-        except json.JSONDecodeError as err:
-            raise ConfigError(f"calibration file {p} is not valid JSON ({err.msg}, line {err.lineno})") from None
+        data = read_user_file(p, json.loads, json.JSONDecodeError,
+                              missing="calibration file not found: {path} (make one with the calibration screen)",
+                              unreadable="cannot read the calibration file {path}: {err}",
+                              malformed="calibration file {path} is not valid JSON ({err.msg}, line {err.lineno})")
         try:
             return cls.model_validate(data)
         except ValidationError as err:

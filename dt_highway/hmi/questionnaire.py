@@ -47,7 +47,7 @@ from typing import Any, Literal
 import pygame
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from dt_highway.config import ConfigError
+from dt_highway.config import ConfigError, read_user_file
 from dt_highway.jsonio import dump_json
 
 QUESTIONNAIRE_DIR = Path(__file__).with_name("questionnaires")
@@ -192,14 +192,10 @@ def load_questionnaire(name_or_path: str | Path) -> Questionnaire:
     if not is_path and not path.is_file():
         raise ConfigError(f"unknown questionnaire {text!r} (allowed: {', '.join(available_questionnaires())}, "
                           "or the path of a .toml file)")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"questionnaire file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"questionnaire file {path} cannot be read ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"questionnaire file {path} is not valid TOML ({exc})") from None
+    data = read_user_file(path, tomllib.loads, tomllib.TOMLDecodeError,
+                          missing="questionnaire file {path} does not exist",
+                          unreadable="questionnaire file {path} cannot be read ({err})",
+                          malformed="questionnaire file {path} is not valid TOML ({err})")
     try:
         return Questionnaire.model_validate(data)
     except ValidationError as exc:
