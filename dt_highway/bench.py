@@ -28,6 +28,7 @@ from dt_highway.env import DTHighwayEnv, make_camera
 from dt_highway.hmi.drive import DriveOptions, run_drive
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.perception import METHODS, Detections, Fusion, FusionSettings
+from dt_highway.rl.preroll import ahead_ok
 from dt_highway.twin.cloud import TwinVehicleView
 
 
@@ -517,12 +518,33 @@ def _env_only(make: Callable[[], gym.Env], steps: int, seed: int) -> dict[str, A
             "obs": np.stack(seen), "rewards": np.asarray(rewards)}
 
 
+def _children(pids: list[int]) -> list[int]:
+    """The processes whose parent is one of ``pids`` (Linux ``/proc``; none elsewhere)."""
+    found = []
+    try:
+        names = os.listdir("/proc")
+    except OSError:
+        return []
+    for name in names:
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat") as fh:
+                ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid in pids:
+            found.append(int(name))
+    return found
+
+
 def _ppo_run(cfg: TrainConfig, env_dict: dict[str, Any], n_envs: int, timesteps: int,
-             progress: Callable[[int], None] | None) -> dict[str, Any]:
+             progress: Callable[[int], None] | None, ahead: bool = False) -> dict[str, Any]:
     """Train PPO (or the file's algorithm) for ``timesteps`` as ``dt-highway train`` does (same env
     factories, reward, seeds, model), without evaluations or checkpoints, and time it.
 
-    :return: steps, wall time of ``learn`` [s] (workers' start-up apart, ``setup_s``), steps/s, and the
+    :return: steps, wall time of ``learn`` [s] (workers' start-up apart, and with ``ahead`` their
+        helpers' up to their first start made ahead: ``setup_s``), steps/s, and the
         split: the learner's updates (``update_s``, its ``train()`` calls) and the rest, collecting
         rollouts (``collect_s``: env steps with their resets, the policy's forward passes) [s]; the CPU
         time of the learner and the workers over ``learn`` (``cpu_s`` [s], a figure that the other
@@ -540,8 +562,11 @@ def _ppo_run(cfg: TrainConfig, env_dict: dict[str, Any], n_envs: int, timesteps:
             return True
 
     t0 = time.perf_counter()
-    factories = [_make_env(env_dict, cfg.seed * 1_000_000 + i, n_envs, cfg.reward) for i in range(n_envs)]
+    factories = [_make_env(env_dict, cfg.seed * 1_000_000 + i, n_envs, cfg.reward, ahead) for i in range(n_envs)]
     venv = SubprocVecEnv(factories, start_method="spawn") if n_envs > 1 else DummyVecEnv(factories)
+    if ahead:  # the helpers' start-up apart too: their first start is made before the clock starts
+        venv.reset()
+        venv.env_method("wait_ready")
     setup_s = time.perf_counter() - t0
     load = _load_1min()
     try:
@@ -557,6 +582,7 @@ def _ppo_run(cfg: TrainConfig, env_dict: dict[str, Any], n_envs: int, timesteps:
 
         algo.train = timed_update
         workers = [p.pid for p in getattr(venv, "processes", []) if p.pid is not None]
+        workers += _children(workers)  # the workers' pre-roll helpers
         t0, c0, w0 = time.perf_counter(), time.process_time(), _cpu_s(workers)
         model.learn(timesteps, callback=Progress())
         wall = time.perf_counter() - t0
@@ -564,7 +590,8 @@ def _ppo_run(cfg: TrainConfig, env_dict: dict[str, Any], n_envs: int, timesteps:
     finally:
         _close(venv)
     steps = int(model.num_timesteps)
-    return {"n_envs": n_envs, "vec_env": type(venv).__name__, "steps": steps, "setup_s": round(setup_s, 2),
+    return {"n_envs": n_envs, "vec_env": type(venv).__name__, "preroll_ahead": ahead, "steps": steps,
+            "setup_s": round(setup_s, 2),
             "wall_s": round(wall, 2), "steps_per_s": round(steps / wall, 1),
             "collect_s": round(wall - learner_s[0], 2), "update_s": round(learner_s[0], 2),
             "collect_steps_per_s": round(steps / (wall - learner_s[0]), 1),
@@ -580,7 +607,9 @@ def bench_train(cfg: TrainConfig, timesteps: int = 8192, n_envs: int = 4, env_st
       (twin, camera, fusion... all on) in ``cfg.n_envs`` envs (``DummyVecEnv`` for one);
     * **fast**: the env of :func:`~dt_highway.rl.train.lean_env_config` (what the observation
       and the reward do not read, off) in ``n_envs`` ``SubprocVecEnv`` workers of one torch and one
-      OpenCV thread each, the learner on one torch thread.
+      OpenCV thread each, the learner on one torch thread; each episode's start computed ahead by a
+      helper process per worker when the configuration allows it
+      (:class:`~dt_highway.rl.preroll.PrerollAhead`; ``preroll_ahead`` says whether it ran).
 
     Measured: env-only steps/s of each env in this process (the same seeded episode, the same
     random actions), whether their observations and rewards are identical (the fast path's
@@ -621,7 +650,7 @@ def bench_train(cfg: TrainConfig, timesteps: int = 8192, n_envs: int = 4, env_st
     for r in env_only.values():
         del r["obs"], r["rewards"]
     ppo = {"today": _ppo_run(cfg, full_dict, cfg.n_envs, timesteps, progress),
-           "fast": _ppo_run(cfg, lean_dict, n_envs, timesteps, progress)}
+           "fast": _ppo_run(cfg, lean_dict, n_envs, timesteps, progress, ahead=n_envs > 1 and ahead_ok(lean_cfg))}
     fast = ppo["fast"]["steps_per_s"]
     kinematic = cfg.observation in ("kinematics", "adas")
     return {

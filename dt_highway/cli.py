@@ -873,7 +873,8 @@ def cmd_bench_train(args: argparse.Namespace) -> int:
     for name in ("today", "fast"):
         r = p[name]
         print(f"{c['algorithm']} {name}: {r['steps_per_s']} steps/s ({r['n_envs']} env{'s' if r['n_envs'] > 1 else ''}, "
-              f"{r['vec_env']}; {r['steps']} steps in {r['wall_s']} s: collecting {r['collect_s']} s = "
+              f"{r['vec_env']}{', starts computed ahead' if r.get('preroll_ahead') else ''}; "
+              f"{r['steps']} steps in {r['wall_s']} s: collecting {r['collect_s']} s = "
               f"{r['collect_steps_per_s']} steps/s, learner {r['update_s']} s; {r['steps_per_cpu_s']} steps per CPU "
               f"second; load {r['load_1min_before']} -> {r['load_1min_after']})")
     target = result["target_steps_per_s"]

@@ -53,6 +53,9 @@ def test_missing_files_are_one_line_errors(tmp_path, capsys):
     model = _policy(tmp_path, log="time/total_timesteps,rollout/ep_rew_mean\n")
     with pytest.raises(ConfigError, match="no time/total_timesteps|with rollouts"):
         write_curve(model)
+    (tmp_path / "p.d" / "progress.csv").write_text("")  # Ctrl-C before the first rollout: an empty log
+    with pytest.raises(ConfigError, match="with rollouts"):
+        write_curve(model)
     (tmp_path / "p.d" / "progress.csv").unlink()
     with pytest.raises(ConfigError, match="training log not found"):
         write_curve(model)

@@ -57,7 +57,10 @@ def training_curve(progress_csv: str | Path, evaluations: list[dict[str, Any]] |
     path = Path(progress_csv)
     if not path.is_file():
         raise ConfigError(f"training log not found: {path} (dt-highway train writes it to <model>.d/progress.csv)")
-    log = pd.read_csv(path)
+    try:
+        log = pd.read_csv(path)
+    except pd.errors.EmptyDataError:  # stopped before the first rollout ended
+        log = pd.DataFrame()
     if "time/total_timesteps" not in log.columns or log.empty:
         raise ConfigError(f"{path} is not a stable-baselines3 training log with rollouts (no time/total_timesteps)")
     terms = sorted(c for c in log.columns if c.startswith("reward/"))

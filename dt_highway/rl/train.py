@@ -51,6 +51,7 @@ from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.rl.config import TrainConfig
 from dt_highway.rl.curves import write_curve
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
+from dt_highway.rl.preroll import PrerollAhead, ahead_ok
 from dt_highway.rl.rewards import RewardTermsLogger, SafetyReward
 
 if TYPE_CHECKING:
@@ -77,19 +78,26 @@ class Reseed(gym.Wrapper):
 
 
 def _make_env(env_config: dict[str, Any], first_seed: int, stride: int,
-              reward: RewardConfig | None = None) -> Callable[[], gym.Env]:
+              reward: RewardConfig | None = None, ahead: bool = False) -> Callable[[], gym.Env]:
     """A factory of one of the vec env's envs (what ``SubprocVecEnv`` sends to its worker);
     ``reward``: the training file's reward (:class:`~dt_highway.rl.rewards.SafetyReward`; ``None``
-    or highway-env's alone: the env's own reward, unwrapped)."""
+    or highway-env's alone: the env's own reward, unwrapped); ``ahead``: in a worker process, each
+    episode's start is computed ahead by a helper (:class:`~dt_highway.rl.preroll.PrerollAhead`,
+    the same seeds and episodes as :class:`Reseed`; only for :func:`~dt_highway.rl.preroll.ahead_ok`
+    configurations)."""
 
     def build() -> gym.Env:
-        if multiprocessing.parent_process() is not None:  # a SubprocVecEnv worker: one thread, the cores are the workers'
+        worker = multiprocessing.parent_process() is not None
+        if worker:  # a SubprocVecEnv worker: one thread, the cores are the workers'
             torch.set_num_threads(1)
             cv2.setNumThreads(1)
-        env = gym.make(ENV_ID, config=env_config)
+        if ahead and worker:
+            env: gym.Env = PrerollAhead(env_config, first_seed, stride)
+        else:
+            env = Reseed(gym.make(ENV_ID, config=env_config), first_seed, stride)
         if reward is not None and not reward.is_highway_only():
             env = SafetyReward(env, reward)
-        return Monitor(Reseed(env, first_seed, stride))
+        return Monitor(env)
 
     return build
 
@@ -339,7 +347,8 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
     if work.exists():
         shutil.rmtree(work)  # checkpoints of an earlier run of this file: not this run's
     work.mkdir(parents=True)
-    factories = [_make_env(run_dict, cfg.seed * 1_000_000 + i, cfg.n_envs, cfg.reward) for i in range(cfg.n_envs)]
+    ahead = lean and cfg.n_envs > 1 and ahead_ok(run_cfg)
+    factories = [_make_env(run_dict, cfg.seed * 1_000_000 + i, cfg.n_envs, cfg.reward, ahead) for i in range(cfg.n_envs)]
     venv = SubprocVecEnv(factories, start_method="spawn") if cfg.n_envs > 1 else DummyVecEnv(factories)
     interrupted = False
     try:
@@ -377,6 +386,7 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         "train_config": cfg.model_dump(),
         "env_config": env_dict,
         "lean_switched_off": switched_off,
+        "preroll_ahead": ahead,
         "versions": versions(),
         "timesteps_done": int(model.num_timesteps),
         "interrupted": interrupted,
