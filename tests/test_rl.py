@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from dt_highway.cli import main
+from dt_highway.conditions import CONDITIONS
 from dt_highway.config import ConfigError, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.drivers.policy import PolicyDriver, load_policy
@@ -38,7 +39,7 @@ def _tiny(tmp_path: Path, observation: str, algorithm: str, n_envs: int = 1, ste
     assert any(out.with_suffix(".d").glob("checkpoint_*.zip"))
     curve = pd.read_csv(out.with_suffix(".curve.csv"))  # the training curve, written by train()
     evals = curve.dropna(subset=["eval_mean_return"])
-    assert evals["eval_mean_return"].tolist() == pytest.approx([e["mean_return"] for e in meta["evaluations"]])
+    assert evals["eval_mean_return"].tolist() == pytest.approx([e["mean_return"] for e in meta["evaluations"]], rel=1e-5)
     assert curve["train_length_mean"].notna().any() and out.with_suffix(".curve.png").stat().st_size > 10_000
     return out
 
@@ -64,6 +65,24 @@ def test_the_shipped_policies_load_and_drive():
         for condition in ("baseline", "adas"):
             result = evaluate(str(path), 1, 0, str(ROOT / "envs/highway-trial.toml"), condition, tuple(SHORT))
             assert result["mean_steps"] > 0
+
+
+@pytest.mark.parametrize("name", ["ppo-safe-baseline"])
+def test_the_safe_policies_load_and_drive_in_every_condition(name):
+    """The round-2 policies (safety-aware reward, delayed assisted menu): 500k+ steps, a curve, and a
+    short episode in each condition a study can run (an ADAS-aware policy in baseline sees no marks)."""
+    path = ROOT / "agents" / f"{name}.zip"
+    driver = load_policy(path)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta["timesteps_done"] >= 500_000 and not meta["interrupted"] and meta["action"] == "assisted-delayed"
+    assert meta["train_config"]["reward"]["collision"]["cut_in"] > 0  # the safety-aware reward, not highway-env's
+    curve = pd.read_csv(path.with_suffix(".curve.csv"))
+    assert curve["timesteps"].max() >= 500_000 and path.with_suffix(".curve.png").is_file()
+    steps = {}
+    for condition in CONDITIONS:
+        result = evaluate(str(path), 1, 0, str(ROOT / "envs/highway-trial.toml"), condition, tuple(SHORT), driver=driver)
+        steps[condition] = result["mean_steps"]
+    assert all(n > 0 for n in steps.values()), steps
 
 
 def test_a_policy_from_another_observation_space_is_refused(tmp_path, capsys):
@@ -243,6 +262,7 @@ def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, ca
     assert main(["train", "--config", str(cfg), "--out", str(out), "--quiet"]) == 130
     meta = json.loads(out.with_suffix(".json").read_text())
     assert meta["interrupted"] is True and out.is_file()
+    assert "no training curve" in capsys.readouterr().err and not out.with_suffix(".curve.png").exists()
     assert isinstance(load_policy(out), PolicyDriver)  # the pair is consistent (hash checked)
 
 
