@@ -67,7 +67,7 @@ def test_the_shipped_policies_load_and_drive():
             assert result["mean_steps"] > 0
 
 
-@pytest.mark.parametrize("name", ["ppo-safe-baseline"])
+@pytest.mark.parametrize("name", ["ppo-safe-baseline", "ppo-safe-adas"])
 def test_the_safe_policies_load_and_drive_in_every_condition(name):
     """The round-2 policies (safety-aware reward, delayed assisted menu): 500k+ steps, a curve, and a
     short episode in each condition a study can run (an ADAS-aware policy in baseline sees no marks)."""
