@@ -487,7 +487,6 @@ def write_compare(result: dict[str, Any], out: str | Path) -> list[Path]:
 
     :return: the files written
     """
-
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     frame = pd.DataFrame(result["episodes_table"])

@@ -3,7 +3,7 @@
 Every training episode starts with a reset: a new driver population and 60 s of traffic before
 t = 0 (the pre-roll, 900 simulation steps: about a fifth of a kinematic episode's work). In
 ``SubprocVecEnv`` the workers step in lockstep, so a worker in its pre-roll holds the others up.
-:class:`PrerollAhead` plays the same seeds as :class:`~dt_highway.rl.train.Reseed` (``first,
+:class:`PrerollAhead` plays the same seeds as :class:`Reseed` (``first,
 first + stride, ...``), but each reset takes an env that a helper process (``python -m
 dt_highway.rl.preroll``, at a lower CPU priority: it runs on what the workers leave idle) has
 already reset with that seed, pickled whole: the same object state, so the same episode, byte
@@ -64,7 +64,26 @@ def _receive(stream: IO[bytes]) -> Any:
     return pickle.loads(blob)  # our own helper's pickles, over a private pipe
 
 
-class PrerollAhead(gym.Wrapper):
+class Reseed(gym.Wrapper):
+    """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
+    (vectorised envs pass a seed to the first reset only)."""
+
+    def __init__(self, env: gym.Env, first: int, stride: int = 1) -> None:
+        super().__init__(env)
+        self.next_seed, self.stride = first, stride
+
+    def _seed_for(self, seed: int | None) -> int:
+        """The seed of the episode starting now: ``seed`` when given, else the next of the sequence."""
+        if seed is None:
+            seed = self.next_seed
+            self.next_seed += self.stride
+        return seed
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        return self.env.reset(seed=self._seed_for(seed), options=options)
+
+
+class PrerollAhead(Reseed):
     """A ``dt-highway-v0`` env whose seeded resets are computed ahead by a helper process.
 
     :param env_config: the env configuration (a dict, as ``gym.make`` takes it; :func:`ahead_ok`)
@@ -73,8 +92,7 @@ class PrerollAhead(gym.Wrapper):
     """
 
     def __init__(self, env_config: dict[str, Any], first: int, stride: int = 1) -> None:
-        super().__init__(DTHighwayEnv(config=env_config))  # what gym.make(...).unwrapped is
-        self.next_seed, self.stride = first, stride
+        super().__init__(DTHighwayEnv(config=env_config), first, stride)  # what gym.make(...).unwrapped is
         self.served = self.missed = 0
         self._pending: int | None = None
         env = {**os.environ, "OMP_NUM_THREADS": "1"}
@@ -112,9 +130,7 @@ class PrerollAhead(gym.Wrapper):
         return answer if isinstance(answer, tuple) else None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        if seed is None:
-            seed = self.next_seed
-            self.next_seed += self.stride
+        seed = self._seed_for(seed)
         ready = None
         if self._pending is not None:
             answer = self._take()

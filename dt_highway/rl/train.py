@@ -51,7 +51,7 @@ from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.rl.config import TrainConfig
 from dt_highway.rl.curves import write_curve
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
-from dt_highway.rl.preroll import PrerollAhead, ahead_ok
+from dt_highway.rl.preroll import PrerollAhead, Reseed, ahead_ok
 from dt_highway.rl.rewards import RewardTermsLogger, SafetyReward
 
 if TYPE_CHECKING:
@@ -60,21 +60,6 @@ if TYPE_CHECKING:
 ENV_ID = "dt_highway:dt-highway-v0"
 VISION_DQN_BUFFER = 20_000
 """DQN's replay buffer with image observations unless ``buffer_size`` is given [transitions] (~1.5 GB)"""
-
-
-class Reseed(gym.Wrapper):
-    """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
-    (vectorised envs pass a seed to the first reset only)."""
-
-    def __init__(self, env: gym.Env, first: int, stride: int = 1) -> None:
-        super().__init__(env)
-        self.next_seed, self.stride = first, stride
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        if seed is None:
-            seed = self.next_seed
-            self.next_seed += self.stride
-        return self.env.reset(seed=seed, options=options)
 
 
 def _make_env(env_config: dict[str, Any], first_seed: int, stride: int,
