@@ -373,9 +373,11 @@ class DangerousCutInConfig(_Section):
 
     A dangerous attempt waits for a victim (the ego preferred) that it is beside or just ahead
     of in the neighbouring lane, with a bumper gap in ``gap_m``; it changes lane at its driver's
-    full lateral speed and, once its centre is in the victim's lane, brakes at ``brake_mps2``
-    down to the victim's speed at the start minus ``speed_drop_mps``, so that the victim closes
-    on it. The other attempts are the gentler cut-ins of ``traffic.cut_in_*``. The section appears
+    full lateral speed and brakes at ``brake_mps2`` down to the victim's speed at the start minus
+    ``speed_drop_mps``, so that the victim closes on it; the brake starts once its centre is in the
+    victim's lane (``brake_onset = "in_lane"``) or with the lane change (``"lane_change"``: the
+    cutter enters the lane already slower than the victim, which closes on it from the first
+    moment, before any reaction). The other attempts are the gentler cut-ins of ``traffic.cut_in_*``. The section appears
     in a dumped configuration only when it differs from its default (``share = 0``: no dangerous
     cut-ins, the world of earlier versions).
     """
@@ -388,6 +390,10 @@ class DangerousCutInConfig(_Section):
                               "[m/s^2]")
     speed_drop_mps: float = Field(
         4.0, ge=0, le=20, description="the cutter brakes to the victim's speed at the start minus this [m/s]"
+    )
+    brake_onset: Literal["in_lane", "lane_change"] = Field(
+        "in_lane", description="when the brake starts: once the cutter's centre is in the victim's lane "
+        "(in_lane) or as its lane change starts (lane_change: it enters the lane already slower than the victim)"
     )
 
     @model_validator(mode="after")

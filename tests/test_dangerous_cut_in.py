@@ -14,10 +14,11 @@ from dt_highway.world.traffic import DriverPopulation, TrafficManager
 DT = 1.0 / 15
 
 
-def _scene(share: float, gap_m: float = 4.0, cutter_speed: float = 25.0, ego_speed: float = 25.0):
+def _scene(share: float, gap_m: float = 4.0, cutter_speed: float = 25.0, ego_speed: float = 25.0,
+           brake_onset: str = "in_lane"):
     """An ego at constant speed in lane 1 and one aggressive driver just ahead of it in lane 0, whose cut-in attempt
     is due now."""
-    cfg = TrafficConfig(dangerous={"share": share}, cut_in_ego_preference=1.0)
+    cfg = TrafficConfig(dangerous={"share": share, "brake_onset": brake_onset}, cut_in_ego_preference=1.0)
     road = Road(network=RoadNetwork.straight_road_network(3, speed_limit=30), np_random=np.random.default_rng(0))
     manager = TrafficManager(cfg, DriverPopulation(cfg, 1.0, np.random.default_rng(0)), np.random.default_rng(5))
     ego = Vehicle(road, road.network.get_lane(("0", "1", 1)).position(200.0, 0), 0.0, ego_speed)
@@ -63,6 +64,29 @@ def test_a_dangerous_cut_in_enters_the_ego_lane_then_brakes_so_that_the_ego_clos
     assert len(braking) == 15 and all(r["accel"] == pytest.approx(-3.0) for r in braking)  # traffic.dangerous.brake_mps2
     # the ego (25 m/s, no reaction) closes on it: TTC drops below 2 s within 2 s of the lane change
     assert min(r["ttc"] for r in rows) < 2.0
+
+
+def test_with_the_brake_at_the_lane_change_the_cutter_enters_the_lane_already_slower():
+    road, manager, ego, cutter = _scene(share=1.0, gap_m=6.0, brake_onset="lane_change")
+    rows = _run(road, manager, ego, cutter, 3.0)
+    started = next(r for r in rows if r["target"] == 1)
+    entered = next(r for r in rows if r["lane"] == 1)
+    before = [r for r in rows if started["t"] <= r["t"] < entered["t"]]
+    assert len(before) >= 5 and all(r["accel"] == pytest.approx(-3.0) for r in before)  # braking while still beside
+    # in the ego's lane it is already 3 m/s^2 x DT x (steps before + the step that took it across) slower than the ego
+    assert 25.0 - entered["speed"] == pytest.approx(3.0 * DT * (len(before) + 1), abs=0.01)
+    assert entered["ttc"] < 10.0  # the ego closes from the first moment
+    road, manager, ego, cutter = _scene(share=1.0, gap_m=30.0, brake_onset="lane_change")
+    cutter.cut_in.dangerous_gap_m = (20.0, 40.0)  # room enough for the whole brake without a crash
+    rows = _run(road, manager, ego, cutter, 6.0)
+    lowest = min(r["speed"] for r in rows)
+    assert lowest == pytest.approx(25.0 - 4.0, abs=0.25)  # and the brake still ends at the victim's speed minus the drop
+    assert cutter.cut_in.brake is None and all(r["target"] == 1 for r in rows if r["t"] > 1.0)
+    in_lane = TrafficConfig(dangerous={"share": 1.0})
+    assert in_lane.dangerous.brake_onset == "in_lane"
+    assert in_lane.model_dump()["dangerous"].get("brake_onset", "in_lane") == "in_lane"
+    with pytest.raises(ValueError, match="brake_onset"):
+        TrafficConfig(dangerous={"brake_onset": "early"})
 
 
 def test_the_brake_ends_at_the_victims_speed_minus_the_drop_and_the_driver_keeps_the_lane():

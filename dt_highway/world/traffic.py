@@ -247,8 +247,9 @@ class CutInPolicy:
     paper's near-miss cut-in (section IV-C, Fig. 5): the victim must be just behind this driver
     in the neighbouring lane, with a bumper gap in ``dangerous_gap_m``; the lane change goes at
     the driver's full lateral speed and, once this driver's centre is in the victim's lane
-    (highway-env's ``lane_index``), it brakes at ``brake_mps2`` until it is ``speed_drop_mps``
-    slower than the victim was at the start (or ``BRAKE_TIMEOUT_S`` has passed), then drives on.
+    (highway-env's ``lane_index``; with ``brake_in_lane_only`` off, from the start of the lane
+    change), it brakes at ``brake_mps2`` until it is ``speed_drop_mps`` slower than the victim was
+    at the start (or ``BRAKE_TIMEOUT_S`` has passed), then drives on.
     """
 
     rate_per_min: float
@@ -266,6 +267,9 @@ class CutInPolicy:
     dangerous_gap_m: tuple[float, float] = (1.0, 8.0)
     brake_mps2: float = 3.0
     speed_drop_mps: float = 4.0
+    brake_in_lane_only: bool = True
+    """Whether a dangerous cut-in's brake waits until this driver's centre is in the victim's lane
+    (else it starts with the lane change)"""
     dangerous: bool = False
     """Whether the open (or next) attempt is the dangerous manoeuvre"""
     brake: BrakePlan | None = None
@@ -306,11 +310,12 @@ class CutInPolicy:
         if plan is None:
             return None
         if me.target_lane_index != plan.lane_index or me.clock_s - plan.start_s > self.BRAKE_TIMEOUT_S \
-                or (me.lane_index == plan.lane_index and me.speed <= plan.target_speed_mps):
+                or (me.speed <= plan.target_speed_mps
+                    and (me.lane_index == plan.lane_index or not self.brake_in_lane_only)):
             self.brake = None  # done, or the lane change was given up (a crash), or it took too long
             self.committed_until_s = me.clock_s + self.KEEP_LANE_S
             return None
-        if me.lane_index != plan.lane_index:
+        if self.brake_in_lane_only and me.lane_index != plan.lane_index:
             return None  # not in the victim's lane yet
         return -self.brake_mps2
 
@@ -493,6 +498,7 @@ class TrafficManager:
                 dangerous_gap_m=self.config.dangerous.gap_m,
                 brake_mps2=self.config.dangerous.brake_mps2,
                 speed_drop_mps=self.config.dangerous.speed_drop_mps,
+                brake_in_lane_only=self.config.dangerous.brake_onset == "in_lane",
             )
             v.cut_in.schedule(self.time_s)
         return v
