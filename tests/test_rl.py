@@ -151,7 +151,7 @@ def test_discrete_driver_menu_and_the_overlay_column():
     assert list(env.action_type.driver_action(6)) == [0.0, -1.0] and list(env.action_type.driver_action(0)) == [-6.0, 0.0]
     with pytest.raises(ValueError, match="0..7"):
         env.action_type.driver_action(8)
-    obs, info = env.reset(seed=0)  # a seed with tagged drivers in view
+    obs, info = env.reset(seed=3)  # a seed with tagged drivers in view in the first 3 s (seeds 0-2 have none)
     assert isinstance(env.observation_type, OverlayKinematics)
     marked_seen = 0
     for _ in range(15):

@@ -517,7 +517,8 @@ def test_a_driver_looking_for_the_truth_in_a_study_trial_finds_nothing(tmp_path,
     monkeypatch.setattr(CameraRenderer, "render", recording_render)
     snoop = Snoop(truths)
     monkeypatch.setattr(study, "load_driver", lambda path: snoop)
-    spec = TrialSpec(str(tmp_path / "adas-000"), "agents/idm.toml", "adas", 0, 0, str(ROOT / "envs/highway-trial.toml"),
+    # seed 3: a trial with aggressive-tagged cars in view in its first seconds (seeds 0-2 have none)
+    spec = TrialSpec(str(tmp_path / "adas-000"), "agents/idm.toml", "adas", 0, 3, str(ROOT / "envs/highway-trial.toml"),
                      ("highway.duration=4", "highway.vehicles_count=16"))
     result = run_trial(spec)
     assert result["status"] == "completed", result
