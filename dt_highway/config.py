@@ -377,9 +377,9 @@ class DangerousCutInConfig(_Section):
     ``speed_drop_mps``, so that the victim closes on it; the brake starts once its centre is in the
     victim's lane (``brake_onset = "in_lane"``) or with the lane change (``"lane_change"``: the
     cutter enters the lane already slower than the victim, which closes on it from the first
-    moment, before any reaction). The other attempts are the gentler cut-ins of ``traffic.cut_in_*``. The section appears
-    in a dumped configuration only when it differs from its default (``share = 0``: no dangerous
-    cut-ins, the world of earlier versions).
+    moment, before any reaction). The other attempts are the gentler cut-ins of
+    ``traffic.cut_in_*``. The section appears in a dumped configuration only when it differs from
+    its default (``share = 0``: no dangerous cut-ins, the world of earlier versions).
     """
 
     share: float = Field(0.0, ge=0, le=1, description="share of cut-in attempts that are the dangerous manoeuvre [-]")
