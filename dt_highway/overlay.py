@@ -176,8 +176,8 @@ def is_threat(view: TwinVehicleView, ego_lane: int, horizon_s: float, threshold:
 
 
 DEFAULT_HORIZON_S, DEFAULT_THRESHOLD = 2.0, 0.5
-"""The threat's operating point when neither ``overlay`` nor the caller gives one (the defaults of
-``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``) [s], [-]"""
+"""The threat's operating point when neither ``overlay`` nor the caller gives one, for callers outside the
+env (the env's pipeline fills in ``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``) [s], [-]"""
 
 
 def select_items(placements: Mapping[int, Placement], views: Mapping[int, TwinVehicleView], settings: OverlayConfig,

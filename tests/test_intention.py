@@ -244,6 +244,20 @@ def _truth_rows():
     return np.array(rows, dtype=float)
 
 
+
+def test_round_two_weights_load_by_name_and_the_round_two_world_pins_them():
+    """The earlier weights stay reachable by name, so round 2's world and the RL policies trained on it
+    see the intents they were trained with; a name that is not shipped is a missing file."""
+    old = LearnedIntention.load("round2", (1.0, 2.0, 3.0))
+    new = LearnedIntention.load(None, (1.0, 2.0, 3.0))
+    with np.load(ROOT / "dt_highway" / "twin" / "intention_weights_round2.npz", allow_pickle=False) as z:
+        assert np.array_equal(old.layers[0][0], z["W0"]) and str(z["meta_seeds"]) == "1000-1059"
+    assert not np.array_equal(old.layers[0][0], new.layers[0][0])
+    r2 = load_config(ROOT / "envs" / "highway-trial-r2.toml")
+    assert (r2.twin.intention.weights, r2.twin.intention.threshold) == ("round2", 0.7)
+    with pytest.raises(ConfigError, match=r"weights file not found: round3 \(a .npz file, or 'round2'\)"):
+        validate({"twin": {"intention": {"weights": "round3"}}})
+
 def test_truth_labels_by_hand():
     truth = Truth(_truth_rows(), 0.1)
     rows = truth.rows_at(np.array([5, 5, 6, 6, 7]), np.array([2.0, 1.0, 2.0, 5.5, 2.0]))
@@ -290,6 +304,25 @@ def test_warning_runs_precision_and_lead_time_by_hand():
     assert cut_in_leads(ep.cut_ins, runs, 1.0) == [pytest.approx(2.0)]  # from 0.5 s to the overlap at 2.5 s
 
 
+def test_when_the_driver_decided_is_the_last_switch_of_its_target_lane_seen():
+    from dt_highway.evaluation.intent import _Recorder, cut_in_scores, view_samples
+
+    rec = _Recorder(0.0)
+    for t, target in [(0.0, 2), (0.1, 2), (0.2, 1), (0.3, 1), (0.4, 2), (0.5, 1), (0.6, 1)]:
+        rec._note_target(5, target, t)
+    rec._note_target(6, 1, 0.0)  # lane 1 already its target when first seen
+    assert rec.decided_s(5, 1) == pytest.approx(0.5)  # the last switch to lane 1, not the first
+    assert math.isnan(rec.decided_s(5, 2))  # not its target now
+    assert math.isnan(rec.decided_s(6, 1)) and math.isnan(rec.decided_s(7, 1))  # chosen unseen; never seen
+    # the scores: car 5 enters at 2.5 s after deciding at 1.9 s; a second cut-in with an unknown decision is left out
+    ep, probs = _episode(lambda t: (0.9 if t >= 1.0 - 1e-9 else 0.1, 0.0))
+    ep.cut_ins = [{**ep.cut_ins[0], "t_decided_s": 1.9}, {**ep.cut_ins[0], "t_decided_s": math.nan}]
+    scores = cut_in_scores([ep], [Truth(ep.truth, 0.1)], [view_samples(ep, probs, 0)], 0.5, 1.0)
+    assert scores["median_decided_before_s"] == pytest.approx(0.6)
+    assert scores["by_maneuver"]["gentle"]["median_decided_before_s"] == pytest.approx(0.6)
+    assert scores["by_maneuver"]["gentle"]["median_lead_s"] == pytest.approx(1.5)  # warned from 1.0 s
+
+
 def test_a_warning_after_the_overlap_or_long_before_is_no_lead():
     runs = [Warning(5, 2.6, 3.0, True), Warning(5, 0.0, 0.2, False)]
     assert math.isnan(cut_in_leads([{"t_s": 2.5, "vehicle_id": 5}], runs, 1.0)[0])
@@ -316,7 +349,7 @@ def test_twin_eval_intent_on_a_tiny_input(capsys):
     scores = result["models"]["learned"]
     assert [r["horizon_s"] for r in scores["per_horizon"]] == [1.0, 2.0, 3.0]
     assert all(r["n_samples"] > 0 for r in scores["per_horizon"])
-    assert result["operating"] == {"horizon_s": 3.0, "threshold": 0.7}
+    assert result["operating"] == {"horizon_s": 3.0, "threshold": 0.65}
     cut_ins = scores["cut_ins"][2]
     assert cut_ins["horizon_s"] == 3.0 and len(cut_ins["curve"]) == 37
     assert result["settings"]["noise_sigma_m"] == 1.0
@@ -338,3 +371,18 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
     assert "twin.intention.enabled" in capsys.readouterr().err
     assert main(["train-intent", "--out", "x.npz", "--alternate", "traffic.nope=1", "--quiet", *TINY]) == 2
     assert "traffic.nope" in capsys.readouterr().err
+
+
+def test_recordings_start_the_ego_in_a_lane_drawn_per_episode():
+    """The trial drivers spend more than half their time in the edge lanes; recordings for training and
+    evaluation must show the model an ego there too, not only in the scenario's start lane."""
+    from dt_highway.evaluation.intent import eval_config, record_episodes
+
+    cfg = load_config(ROOT / "envs" / "highway-trial.toml", [t for t in TINY if t != "--set"])
+    assert cfg.highway.initial_lane_id == 1
+    rec = eval_config(cfg)
+    assert rec.highway.initial_lane_id is None and rec.ego.autopilot
+    episodes = record_episodes(cfg, [0, 2, 9])  # seeds whose draws differ (with the start lane: 1, 1, 1)
+    lanes = [{v[4] for v in ep.views} for ep in episodes]
+    assert all(len(s) == 1 for s in lanes)  # the autopilot keeps its lane
+    assert [min(s) for s in lanes] == [1, 2, 0]

@@ -104,6 +104,9 @@ HIDDEN = 64
 """Hidden units per layer of the learned model"""
 WEIGHTS_FILE = "intention_weights.npz"
 """The shipped weights, in this package"""
+SHIPPED_WEIGHTS = {"round2": "intention_weights_round2.npz"}
+"""Earlier weights shipped beside the current ones, by name (``twin.intention.weights = "round2"``): round 2's,
+trained on ``envs/highway-trial-r2.toml`` (the world of the round-2 study and of the shipped RL policies)"""
 
 OWN_FEATURES = (
     "speed",  # own speed / 30 [m/s]
@@ -470,13 +473,15 @@ class LearnedIntention:
 
     @staticmethod
     def load(path: str | Path | None, horizons_s: tuple[float, ...]) -> LearnedIntention:
-        """Read weights written by :func:`save_weights` (``None``: the shipped ones).
+        """Read weights written by :func:`save_weights` (``None``: the shipped ones; a name of
+        :data:`SHIPPED_WEIGHTS`: those earlier shipped weights).
 
         :raises ValueError: when the file is not intention weights, was made for other inputs, or
             does not cover ``horizons_s``
         """
-        if path is None:
-            ref = resources.files("dt_highway.twin").joinpath(WEIGHTS_FILE)
+        if path is None or str(path) in SHIPPED_WEIGHTS:
+            name = WEIGHTS_FILE if path is None else SHIPPED_WEIGHTS[str(path)]
+            ref = resources.files("dt_highway.twin").joinpath(name)
             with resources.as_file(ref) as p:
                 return LearnedIntention._from_npz(p, horizons_s)
         return LearnedIntention._from_npz(Path(path), horizons_s)
