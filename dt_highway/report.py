@@ -59,7 +59,7 @@ from dt_highway.conditions import CONDITIONS
 from dt_highway.config import ConfigError
 from dt_highway.hmi.questionnaire import read_results
 from dt_highway.jsonio import dump_json
-from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S
+from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S, marked_ids, warned_cut_ins
 from dt_highway.metrics.safety import (
     CONFLICT_TTC_S,
     CUT_IN_WINDOW_S,
@@ -300,7 +300,8 @@ def _plot_data(trial: Trial, extra: dict[str, Any]) -> None:
     t = s["t_s"].to_numpy(float)
     v = s["speed_mps"].to_numpy(float) * MS_TO_KMH
     overlay = s["overlay_ids"].fillna("").astype(str).to_numpy()
-    for c in trial.cut_ins:
+    warned = warned_cut_ins(t, marked_ids(s), trial.cut_ins)
+    for c, warned_in_time in zip(trial.cut_ins, warned, strict=True):
         t0 = float(c["t_s"])
         grid = np.arange(-2.0, CUT_IN_WINDOW_S + 1e-9, 0.5)
         trace = np.interp(t0 + grid, t, v, left=np.nan, right=np.nan)
@@ -309,7 +310,8 @@ def _plot_data(trial: Trial, extra: dict[str, Any]) -> None:
         before = overlay[(t >= t0 - CUT_IN_WINDOW_S) & (t <= t0)]
         vid = str(int(c["vehicle_id"]))
         marked_before = any(vid in ids.split(";") for ids in before if ids)
-        extra["cut_ins"].append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_before})
+        extra["cut_ins"].append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_before,
+                                 "near_miss": c.get("maneuver") == "dangerous", "warned": warned_in_time})
 
 
 def collect(study_dir: str | Path, warn: Warn | None = None) -> tuple[pd.DataFrame, dict[str, Any]]:
@@ -557,6 +559,9 @@ def _condition_entry(g: pd.DataFrame, cuts: list[dict[str, Any]]) -> dict[str, A
     rough = [c for c in cuts if c["driver_type"] == "aggressive"]
     entry["cut_ins_by_aggressive"] = len(rough)
     entry["cut_ins_by_aggressive_marked_in_time"] = sum(c["marked_in_time"] for c in rough)
+    near = [c for c in cuts if c.get("near_miss")]
+    entry["cut_ins_near_miss"] = len(near)
+    entry["cut_ins_near_miss_warned"] = sum(bool(c.get("warned")) for c in near)
     if "cut_ins_warned" in g and "cut_ins" in g:
         total = int(g["cut_ins"].fillna(0).sum())
         entry["cut_ins_warned"] = int(g["cut_ins_warned"].fillna(0).sum())
@@ -736,9 +741,10 @@ table.prov td{text-align:left;border:none;padding:.1em .8em .1em 0}table.prov td
 <h3>Speed around cut-ins</h3><img alt="speed traces around cut-ins" src="data:image/png;base64,{{ plots.cut_in_speed }}">
 <h2>How the overlay performed</h2>
 <p>A cut-in's vehicle counts as marked in time when the overlay showed it at some moment of the {{ window }} s before it cut in.</p>
-<table><tr><th>condition</th><th>cut-ins</th><th>marked in time</th><th>cut-ins by aggressive drivers (true type)</th><th>of those, marked in time</th></tr>
+<table><tr><th>condition</th><th>cut-ins</th><th>marked in time</th><th>cut-ins by aggressive drivers (true type)</th><th>of those, marked in time</th><th title="the traffic's near-miss cut-ins (maneuver = dangerous): from just ahead in the next lane, braking">near-miss cut-ins</th><th title="{{ definitions['cut_ins_warned_share'] }}">of those, warned in time</th></tr>
 {% for c in conds %}{% set e = summary.conditions[c] %}<tr><td>{{ c }}</td><td>{{ e.cut_ins }}</td><td>{{ e.cut_ins_marked_in_time }}{{ pct(e.cut_ins_marked_in_time, e.cut_ins) }}</td>
-<td>{{ e.cut_ins_by_aggressive }}</td><td>{{ e.cut_ins_by_aggressive_marked_in_time }}{{ pct(e.cut_ins_by_aggressive_marked_in_time, e.cut_ins_by_aggressive) }}</td></tr>{% endfor %}
+<td>{{ e.cut_ins_by_aggressive }}</td><td>{{ e.cut_ins_by_aggressive_marked_in_time }}{{ pct(e.cut_ins_by_aggressive_marked_in_time, e.cut_ins_by_aggressive) }}</td>
+<td>{{ e.get("cut_ins_near_miss", "–") }}</td><td>{{ e.get("cut_ins_near_miss_warned", "–") }}{{ pct(e.get("cut_ins_near_miss_warned", 0), e.get("cut_ins_near_miss", 0)) }}</td></tr>{% endfor %}
 </table>
 {% if overlay_metrics %}<table><tr><th>metric per trial [unit]</th>{% for c in conds %}<th>{{ c }}: mean &plusmn; SD (n)</th>{% endfor %}</tr>
 {% for m in overlay_metrics %}<tr><td title="{{ m }}: {{ definitions[m] }}">{{ label(m) }}</td>{% for c in conds %}{% set d = summary.conditions[c][m] %}<td>{{ fmt(d.mean) }} &plusmn; {{ fmt(d.sd) }} ({{ d.n }})</td>{% endfor %}</tr>{% endfor %}

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dt_highway.metrics.overlay_metrics import mark_onsets, marked_ids, overlay_metrics
+from dt_highway.metrics.overlay_metrics import mark_onsets, marked_ids, overlay_metrics, warned_cut_ins
 
 DT = 0.5
 T = np.arange(1, 61) * DT  # 0.5 .. 30 s: 60 samples, one minute is 120
@@ -59,3 +59,21 @@ def test_nothing_shown():
     m = overlay_metrics(table({}), DT, [])
     assert m["overlay_on_share"] == 0.0 and m["marks"] == 0 and m["false_warnings_per_min"] == 0.0
     assert math.isnan(m["cut_ins_warned_share"])
+
+
+def test_each_cut_in_is_flagged_and_the_report_counts_the_near_misses():
+    from dt_highway.report import _plot_data
+
+    steps = table(MARKS)
+    assert warned_cut_ins(T, marked_ids(steps), CUT_INS) == [True, False, False]
+
+    class Trial:  # what the report reads of a trial
+        meta = {"condition": "adas-threat"}
+        cut_ins = [{**CUT_INS[0], "maneuver": "dangerous", "driver_type": "aggressive"},
+                   {**CUT_INS[1], "maneuver": "dangerous", "driver_type": "aggressive"},
+                   {**CUT_INS[2], "maneuver": "", "driver_type": "normal"}]
+
+    Trial.steps = steps.assign(ttc_s=10.0, closing_mps=0.0, speed_mps=25.0)
+    extra: dict = {"ttc": {}, "traces": [], "cut_ins": []}
+    _plot_data(Trial(), extra)
+    assert [(c["near_miss"], c["warned"]) for c in extra["cut_ins"]] == [(True, True), (True, False), (False, False)]

@@ -68,6 +68,26 @@ def _cut_in_time_s(ev: dict[str, Any]) -> float:
     return float(ev.get("t_path_s", ev["t_s"]))
 
 
+def warned_cut_ins(t_s: np.ndarray, marks: Sequence[frozenset[int]], cut_ins: Sequence[dict[str, Any]],
+                   horizon_s: float = WARNING_HORIZON_S, lead_s: float = WARNING_LEAD_S) -> list[bool]:
+    """Whether each cut-in was warned: its vehicle marked at some sample within ``[t_c - H - 1 s, t_c - lead_s]``
+    (module docstring).
+
+    :param t_s: sample times [s]
+    :param marks: the marked ids per sample (:func:`marked_ids`)
+    :param cut_ins: the cut-in events (``t_s`` or ``t_path_s``, ``vehicle_id``)
+    :param horizon_s: H [s]
+    :param lead_s: how early the mark must have been shown [s]
+    :return: one flag per cut-in
+    """
+    out = []
+    for ev in cut_ins:
+        tc, vid = _cut_in_time_s(ev), int(ev["vehicle_id"])
+        before = np.flatnonzero((t_s >= tc - horizon_s - 1.0 - 1e-9) & (t_s <= tc - lead_s + 1e-9))
+        out.append(any(vid in marks[int(k)] for k in before))
+    return out
+
+
 def overlay_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str, Any]],
                     horizon_s: float = WARNING_HORIZON_S, lead_s: float = WARNING_LEAD_S) -> dict[str, Any]:
     """The overlay's metrics of one trial (definitions: module docstring).
@@ -93,11 +113,7 @@ def overlay_metrics(steps: pd.DataFrame, dt_s: float, cut_ins: Sequence[dict[str
     judged = [(t_on, vid) for t_on, vid in onsets if t_on + reach <= last + 1e-9]
     false = sum(not any(t_on - 1e-9 <= tc <= t_on + reach + 1e-9 for tc in cut_times.get(vid, ())) for t_on, vid in judged)
     judged_min = int(np.count_nonzero(t + reach <= last + 1e-9)) * dt_s / 60.0
-    warned = 0
-    for ev in cut_ins:
-        tc, vid = _cut_in_time_s(ev), int(ev["vehicle_id"])
-        before = np.flatnonzero((t >= tc - reach - 1e-9) & (t <= tc - lead_s + 1e-9))
-        warned += any(vid in marks[k] for k in before)
+    warned = sum(warned_cut_ins(t, marks, cut_ins, horizon_s, lead_s))
     return {
         "overlay_on_share": float(np.mean([bool(m) for m in marks])) if n else math.nan,
         "marks": len(onsets),
