@@ -740,7 +740,7 @@ table.prov td{text-align:left;border:none;padding:.1em .8em .1em 0}table.prov td
 <h3>Speed variance, paired by trial</h3><img alt="paired speed variance" src="data:image/png;base64,{{ plots.variance }}">
 <h3>Speed around cut-ins</h3><img alt="speed traces around cut-ins" src="data:image/png;base64,{{ plots.cut_in_speed }}">
 <h2>How the overlay performed</h2>
-<p>A cut-in's vehicle counts as marked in time when the overlay showed it at some moment of the {{ window }} s before it cut in.</p>
+<p>A cut-in's vehicle counts as marked in time when the overlay showed it at some moment of the {{ window }} s before it cut in; warned in time, when it was shown {{ warned_window }} s before (the overlay's metric below).</p>
 <table><tr><th>condition</th><th>cut-ins</th><th>marked in time</th><th>cut-ins by aggressive drivers (true type)</th><th>of those, marked in time</th><th title="the traffic's near-miss cut-ins (maneuver = dangerous): from just ahead in the next lane, braking">near-miss cut-ins</th><th title="{{ definitions['cut_ins_warned_share'] }}">of those, warned in time</th></tr>
 {% for c in conds %}{% set e = summary.conditions[c] %}<tr><td>{{ c }}</td><td>{{ e.cut_ins }}</td><td>{{ e.cut_ins_marked_in_time }}{{ pct(e.cut_ins_marked_in_time, e.cut_ins) }}</td>
 <td>{{ e.cut_ins_by_aggressive }}</td><td>{{ e.cut_ins_by_aggressive_marked_in_time }}{{ pct(e.cut_ins_by_aggressive_marked_in_time, e.cut_ins_by_aggressive) }}</td>
@@ -896,6 +896,7 @@ def write_report(study_dir: str | Path, warn: Warn | None = None) -> dict[str, P
         small=[c for c in summary["comparisons"] if c["small_sample"]], min_pairs=MIN_PAIRS,
         plots=_plots(metrics, extra, conds), fmt=_fmt, pfmt=_pfmt, label=metric_label, questionnaires=quest,
         window=f"{CUT_IN_WINDOW_S:g}", conflict=f"{CONFLICT_TTC_S:g}",
+        warned_window=f"{WARNING_LEAD_S:g} to {WARNING_HORIZON_S + 1:g}",
         pct=lambda k, n: f" ({100 * k / n:.0f} %)" if n else "")
     files["html"].write_text(html, encoding="utf-8")
     return files
