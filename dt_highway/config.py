@@ -741,8 +741,8 @@ class DetectorConfig(_Section):
 
     @model_validator(mode="after")
     def _weights_file(self) -> DetectorConfig:
-        if self.weights is not None and self.weights != "round2" and not Path(self.weights).is_file():
-            raise ValueError(f"weights file not found: {self.weights} (a .npz file, or 'round2')")
+        if self.weights is not None and not Path(self.weights).is_file():
+            raise ValueError(f"weights file not found: {self.weights}")
         return self
 
 

@@ -244,7 +244,6 @@ def _truth_rows():
     return np.array(rows, dtype=float)
 
 
-
 def test_round_two_weights_load_by_name_and_the_round_two_world_pins_them():
     """The earlier weights stay reachable by name, so round 2's world and the RL policies trained on it
     see the intents they were trained with; a name that is not shipped is a missing file."""
@@ -257,6 +256,7 @@ def test_round_two_weights_load_by_name_and_the_round_two_world_pins_them():
     assert (r2.twin.intention.weights, r2.twin.intention.threshold) == ("round2", 0.7)
     with pytest.raises(ConfigError, match=r"weights file not found: round3 \(a .npz file, or 'round2'\)"):
         validate({"twin": {"intention": {"weights": "round3"}}})
+
 
 def test_truth_labels_by_hand():
     truth = Truth(_truth_rows(), 0.1)
