@@ -299,17 +299,16 @@ def _plot_data(trial: Trial, extra: dict[str, Any]) -> None:
     extra["ttc"].setdefault(cond, []).append(ttc[(s["closing_mps"].to_numpy(float) > 0) & (ttc < TTC_CAP_S)])
     t = s["t_s"].to_numpy(float)
     v = s["speed_mps"].to_numpy(float) * MS_TO_KMH
-    overlay = s["overlay_ids"].fillna("").astype(str).to_numpy()
-    warned = warned_cut_ins(t, marked_ids(s), trial.cut_ins)
+    marks = marked_ids(s)
+    warned = warned_cut_ins(t, marks, trial.cut_ins)
     for c, warned_in_time in zip(trial.cut_ins, warned, strict=True):
         t0 = float(c["t_s"])
         grid = np.arange(-2.0, CUT_IN_WINDOW_S + 1e-9, 0.5)
         trace = np.interp(t0 + grid, t, v, left=np.nan, right=np.nan)
         extra["traces"].append({"condition": cond, "grid": grid, "speed_kmh": trace - np.interp(t0, t, v)})
         # marked in time: on the overlay at some step of the window before the cut-in
-        before = overlay[(t >= t0 - CUT_IN_WINDOW_S) & (t <= t0)]
-        vid = str(int(c["vehicle_id"]))
-        marked_before = any(vid in ids.split(";") for ids in before if ids)
+        vid = int(c["vehicle_id"])
+        marked_before = any(vid in marks[k] for k in np.flatnonzero((t >= t0 - CUT_IN_WINDOW_S) & (t <= t0)))
         extra["cut_ins"].append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_before,
                                  "near_miss": c.get("maneuver") == "dangerous", "warned": warned_in_time})
 
