@@ -58,6 +58,7 @@ from dt_highway.hmi.keys import KeyScript, KeyScriptError
 from dt_highway.hmi.replay import replay_trial
 from dt_highway.hmi.session import condition_order, run_session
 from dt_highway.jsonio import dump_json
+from dt_highway.metrics.trial_log import interrupted_by_user
 from dt_highway.rl.config import load_train_config
 from dt_highway.rl.files import sidecar_path
 from dt_highway.study import find_file, freeze_inputs, is_completed, plan, run_study
@@ -1242,6 +1243,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"dt-highway {args.command}: error: cannot write{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print(f"dt-highway {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except SystemError as exc:  # Ctrl-C inside a numba-compiled function arrives as a SystemError caused by it
+        if not interrupted_by_user(exc):
+            raise
         print(f"dt-highway {args.command}: interrupted", file=sys.stderr)
         return 130
 

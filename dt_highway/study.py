@@ -47,6 +47,7 @@ from dt_highway.jsonio import dump_json
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
     TrialWriter,
+    interrupted_by_user,
     load_trial,
     write_parquet,
 )
@@ -209,7 +210,9 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
                     end = "collision" if u.vehicle.crashed else ("time limit" if truncated else "terminated")
             log.meta["end_reason"] = end
         env.close()
-    except Exception as err:  # noqa: BLE001 - one failed trial must not sink the study
+    except Exception as err:  # one failed trial must not sink the study
+        if interrupted_by_user(err):  # Ctrl-C inside a numba-compiled function: a SystemError caused by it
+            raise KeyboardInterrupt from err
         return {"status": "failed", "directory": str(out), "error": f"{type(err).__name__}: {err}",
                 "traceback": traceback.format_exc()}
     trial = load_trial(out)

@@ -6,7 +6,7 @@ import math
 import pytest
 
 from dt_highway.metrics.safety import SafetySample
-from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, load_trial
+from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, interrupted_by_user, load_trial
 from dt_highway.study import TrialSpec, run_trial
 
 
@@ -56,3 +56,54 @@ def test_a_120_s_trial_at_15_hz_has_1800_samples(tmp_path):
     assert len(steps) == 1800 and steps["t_s"].iloc[0] == pytest.approx(1 / 15) and steps["t_s"].iloc[-1] == 120.0
     assert result["metrics"]["n_samples"] == 1800 and result["metrics"]["duration_s"] == 120.0
     assert not result["metrics"]["cut_short"]
+
+
+def _numba_interrupt() -> SystemError:
+    """What Ctrl-C during a numba-compiled call raises: a SystemError whose cause is the KeyboardInterrupt."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as ki:
+            raise SystemError("CPUDispatcher(<function _perspective>) returned a result with an exception set") from ki
+    except SystemError as err:
+        return err
+
+
+def test_ctrl_c_inside_a_numba_function_closes_the_log_as_interrupted_not_as_an_error(tmp_path):
+    assert interrupted_by_user(_numba_interrupt()) and interrupted_by_user(KeyboardInterrupt())
+    assert not interrupted_by_user(SystemError("a real error")) and not interrupted_by_user(None)
+    for name, exc, reason in (("ki", _numba_interrupt(), "interrupted by the user"),
+                              ("err", SystemError("a real error"), "SystemError: a real error")):
+        with pytest.raises(SystemError), TrialWriter(tmp_path / name, {"driver": "x"}):
+            raise exc
+        meta = load_trial(tmp_path / name).meta
+        assert (meta["status"], meta["end_reason"]) == ("aborted", reason)
+
+
+@pytest.mark.parametrize("interrupt", [True, False])
+def test_a_trial_interrupted_inside_a_numba_function_raises_ctrl_c_and_a_real_error_fails_it(tmp_path, monkeypatch,
+                                                                                             interrupt):
+    """Ray cancels a trial by a simulated Ctrl-C, which may land inside the camera's numba code (CI, stop 28)."""
+    from dt_highway import study
+
+    calls = []
+
+    def perceive(self):
+        calls.append(1)
+        if len(calls) == 5:
+            raise _numba_interrupt() if interrupt else SystemError("a real error")
+        return original(self)
+
+    original = study.DriverSeat.perceive
+    monkeypatch.setattr(study.DriverSeat, "perceive", perceive)
+    spec = TrialSpec(str(tmp_path / "t"), "agents/idm.toml", "baseline", 0, 5, "envs/highway-trial.toml",
+                     ("highway.vehicles_count=8", "twin.preroll_s=2", "highway.duration=5"))
+    if interrupt:
+        with pytest.raises(KeyboardInterrupt):
+            run_trial(spec)
+    else:
+        result = run_trial(spec)
+        assert (result["status"], result["error"]) == ("failed", "SystemError: a real error")
+    meta = load_trial(tmp_path / "t").meta
+    assert meta["status"] == "aborted"
+    assert meta["end_reason"] == ("interrupted by the user" if interrupt else "SystemError: a real error")

@@ -112,6 +112,25 @@ def git_commit(directory: Path = PACKAGE_DIR) -> str | None:
     return head.stdout.strip() + ("-dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
 
 
+def interrupted_by_user(exc: BaseException | None) -> bool:
+    """Whether an exception is Ctrl-C (a :class:`KeyboardInterrupt`) or was raised because of one.
+
+    A :class:`KeyboardInterrupt` that a signal handler raises while a numba-compiled function runs
+    reaches Python as ``SystemError: CPUDispatcher(...) returned a result with an exception set``,
+    whose cause is the interrupt: that, too, is the user's interrupt, not a failure of the trial.
+
+    :param exc: the exception (``None``: no exception)
+    :return: whether it or an exception in its chain of causes and contexts is a KeyboardInterrupt
+    """
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 class TrialWriter:
     """Writes one trial's directory as the trial runs (use as a context manager).
 
@@ -179,8 +198,8 @@ class TrialWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
-            self.close("aborted", "interrupted by the user")  # Ctrl-C
+        if exc_type is not None and interrupted_by_user(exc):
+            self.close("aborted", "interrupted by the user")  # Ctrl-C (also inside a numba-compiled function)
         elif exc_type is not None:
             self.close("aborted", f"{exc_type.__name__}: {exc}")
         else:
