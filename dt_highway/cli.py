@@ -34,7 +34,7 @@ from dt_highway.bench import (
 )
 from dt_highway.conditions import CONDITIONS, condition_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge, parse_override
-from dt_highway.drivers import load_driver
+from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.calibration import calibrate, calibration_table, markdown
 from dt_highway.evaluation.frames import record_frames
@@ -170,8 +170,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
         args.overrides = [f"traffic.population={args.population}", *args.overrides]
     if args.intent:
         return _twin_eval_intent(args)
-    if args.sweep:
-        raise ConfigError("--sweep goes with --intent")
+    if args.sweep or args.driver is not None:
+        raise ConfigError(f"{'--sweep' if args.sweep else '--driver'} goes with --intent")
     cfg = _config(args)
     episodes = args.episodes or 3
     steps = episodes * episode_steps(cfg)
@@ -208,20 +208,30 @@ def _write_result(path: str, result: Any) -> None:
     print(f"wrote {out}", file=sys.stderr)
 
 
+def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, Any] | None]:
+    """The ``--driver`` of ``twin-eval --intent`` and ``train-intent``: the driver, and what it adds to the
+    configuration (the baseline condition and the driver's overrides, as in a study trial)."""
+    if args.driver is None:
+        return None, None
+    driver = load_driver(args.driver)
+    return driver, deep_merge(condition_config("baseline"), driver.config_overrides())
+
+
 def _twin_eval_intent(args: argparse.Namespace) -> int:
     """``twin-eval --intent [--sweep]``: the lane-change intention against the simulator's truth."""
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
-    cfg = _config(args)
+    driver, extra = _intent_driver(args)
+    cfg = _config(args, extra)
     episodes = args.episodes or INTENT_EPISODES
     result: dict[str, Any] | list[dict[str, Any]]
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
-            result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update)
+            result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
         lines = format_sweep(result)
     else:
         with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
-            result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update)
+            result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver)
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))
     if args.out:
@@ -245,7 +255,8 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     """Train the twin's lane-change intention network on simulated fixes (training seeds)."""
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
-    cfg = _config(args)
+    driver, extra = _intent_driver(args)
+    cfg = _config(args, extra)
     record = _progress(args.episodes * episode_steps(cfg), "record", args.quiet)
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     alternate: dict[str, Any] = {}
@@ -254,7 +265,8 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
     with record, fitting:
         summary = train_intention(cfg, args.episodes, args.seed, args.out, args.epochs, alternate or None,
-                                  progress=lambda stage, n: (record if stage == "record" else fitting).update(n))
+                                  progress=lambda stage, n: (record if stage == "record" else fitting).update(n),
+                                  driver=driver)
     print(f"trained on {summary['samples']} estimates of seeds {summary['seeds'][0]}-{summary['seeds'][1]}, "
           f"final loss {summary['final_loss']:.4f}")
     print(f"wrote {summary['out']}")
@@ -945,6 +957,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "held out from train-intent's seeds)")
     p.add_argument("--sweep", action="store_true",
                    help="with --intent: sweep GNSS noise {0.5,1,2,3} m, latency {0,0.1,0.3,0.5} s, rate {10,5,2,1} Hz")
+    p.add_argument("--driver", metavar="FILE",
+                   help="with --intent: this driver (e.g. agents/human.toml) drives the ego, in the baseline condition, "
+                   "as in a study (default: the autopilot, 25 m/s in its lane)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -962,6 +977,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--alternate", metavar="KEY=VALUE", action="append", default=[],
                    help="the odd training seeds also take this override (a mix of two worlds), e.g. "
                    "traffic.dangerous.share=0.5 (repeatable)")
+    p.add_argument("--driver", metavar="FILE",
+                   help="this driver (e.g. agents/human.toml) drives the ego in the recordings, in the baseline "
+                   "condition (default: the autopilot)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_intent)
 

@@ -386,3 +386,38 @@ def test_recordings_start_the_ego_in_a_lane_drawn_per_episode():
     lanes = [{v[4] for v in ep.views} for ep in episodes]
     assert all(len(s) == 1 for s in lanes)  # the autopilot keeps its lane
     assert [min(s) for s in lanes] == [1, 2, 0]
+
+
+def test_a_driver_model_can_drive_the_ego_in_the_recordings_and_bad_driver_options_are_one_line_errors(capsys):
+    """``twin-eval --intent --driver`` / ``train-intent --driver``: the twin scored (or trained) in the driving
+    of a study, where the ego changes lane and speed, instead of the autopilot's."""
+    from dt_highway.drivers import Driver
+    from dt_highway.evaluation.intent import eval_config, record_episodes
+
+    class Lefty(Driver):  # asks for the lane to its left at every decision
+        def __init__(self) -> None:
+            super().__init__("lefty")
+            self.seeds: list[int] = []
+            self.calls = 0
+
+        def reset(self, seed: int) -> None:
+            self.seeds.append(seed)
+
+        def act(self, perception):
+            self.calls += 1
+            return np.array([0.0, -1.0])
+
+    cfg = load_config(ROOT / "envs" / "highway-trial.toml", [t for t in TINY if t != "--set"])
+    assert not eval_config(cfg, driven=True).ego.autopilot and eval_config(cfg).ego.autopilot
+    lefty = Lefty()
+    driven = record_episodes(cfg, [0, None], driver=lefty)
+    auto = record_episodes(cfg, [0])
+    assert lefty.seeds == [0, 1] and lefty.calls >= 2 * 4 * cfg.highway.policy_frequency
+    assert {v[4] for v in auto[0].views} == {1}  # seed 0 starts in lane 1; the autopilot keeps it
+    driven_lanes = [v[4] for v in driven[0].views]
+    assert driven_lanes[0] == 1 and driven_lanes[-1] == 0  # the driver moved the ego to the left lane
+    assert main(["twin-eval", "--driver", "agents/human.toml", "--quiet", *TINY]) == 2
+    assert "--driver goes with --intent" in capsys.readouterr().err
+    assert main(["twin-eval", "--intent", "--driver", "agents/nope.toml", "--quiet", *TINY]) == 2
+    err = capsys.readouterr().err
+    assert "nope.toml" in err and len(err.strip().splitlines()) == 1

@@ -49,7 +49,9 @@ from typing import Any
 import numpy as np
 
 from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
+from dt_highway.drivers import Driver
 from dt_highway.env import DTHighwayEnv
+from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
 from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model
 from dt_highway.world.traffic import EGO_ID, vehicle_id
@@ -178,15 +180,17 @@ class RecordingEnv(DTHighwayEnv):
             self.recorder.sample(self)
 
 
-def eval_config(config: DTConfig) -> DTConfig:
+def eval_config(config: DTConfig, driven: bool = False) -> DTConfig:
     """The configuration episodes are recorded with: the ego on its autopilot (IDM, no lane changes),
-    starting in a lane drawn at random for each episode (``highway.initial_lane_id = None``).
+    or driven by a driver model (``driven``), starting in a lane drawn at random for each episode
+    (``highway.initial_lane_id = None``).
 
     The drawn lane matters: the trial drivers spend more than half their time in the edge lanes,
     where a car cutting in on them comes from the middle lane; an ego kept in the middle lane (the
     trial scenario's start) would never show the model, nor the evaluation, a car beside the ego in
     the middle lane.
 
+    :param driven: a driver model drives the ego (autopilot off, the drivers' action type)
     :raises ConfigError: without the twin, its intention model or typed traffic
     """
     if not config.twin.enabled:
@@ -195,6 +199,8 @@ def eval_config(config: DTConfig) -> DTConfig:
         raise ConfigError("twin-eval --intent needs twin.intention.enabled = true")
     if not config.traffic.driver_types:
         raise ConfigError("twin-eval --intent needs traffic.driver_types = true (stock traffic has no typed drivers)")
+    if driven:  # a driver's decisions reach the ego through the drivers' action type (as in a study)
+        return merge(config, {"ego": {"autopilot": False}, "highway": {"initial_lane_id": None, "action": {"type": "Driver"}}})
     return merge(config, {"ego": {"autopilot": True}, "highway": {"initial_lane_id": None}})
 
 
@@ -203,28 +209,38 @@ def record_episodes(
     seeds: Sequence[int | None],
     with_preroll: bool = False,
     progress: Callable[[int], None] | None = None,
+    driver: Driver | None = None,
 ) -> list[Episode]:
-    """Run and record episodes of one env (ego on the autopilot).
+    """Run and record episodes of one env (ego on the autopilot, or driven by ``driver``).
 
-    :param config: resolved configuration
+    :param config: resolved configuration (with a driver: merged with its condition and its
+        ``config_overrides()``, as a study trial's)
     :param seeds: the seed of each episode's reset (``None``: continue the world of the previous one)
     :param with_preroll: also record the pre-roll (training data); else from ``t = 0`` on
     :param progress: called with policy steps simulated (see :func:`~dt_highway.evaluation.twin.episode_steps`)
-    :return: one :class:`Episode` per seed
+    :param driver: the ego's driver, acting on what its :class:`~dt_highway.env.seat.DriverSeat` perceives
+        (reset with each episode's seed, or its index when the seed is ``None``); ``None``: the autopilot
+    :return: one :class:`Episode` per seed (a driven episode ends early at a collision)
     """
-    cfg = eval_config(config)
+    cfg = eval_config(config, driven=driver is not None)
     env = RecordingEnv(config=cfg.to_dict())
     out = []
     try:
-        for seed in seeds:
+        for i, seed in enumerate(seeds):
             env.recorder = _Recorder(-math.inf if with_preroll else 0.0)
             env.reset(seed=seed)
+            seat = None
+            if driver is not None:
+                seat = DriverSeat(env, driver.senses)
+                driver.reset(seed if seed is not None else i)
             if progress is not None:
                 progress(int(round(cfg.twin.preroll_s * cfg.highway.policy_frequency)))
             rec = env.recorder
             done = False
             while not done:
-                _, _, terminated, truncated, info = env.step(env.action_space.sample())
+                action = env.action_space.sample() if seat is None or driver is None else (
+                    np.asarray(driver.act(seat.perceive()), dtype=float))
+                _, _, terminated, truncated, info = env.step(action)
                 lane = int(env.vehicle.lane_index[2])
                 rec.cut_ins += [
                     {"t_s": float(c["t_s"]), "vehicle_id": int(c["vehicle_id"]), "gap_m": float(c["gap_m"]),
@@ -563,6 +579,7 @@ def evaluate_intent(
     seed: int,
     models: Sequence[str] = ("learned", "physics"),
     progress: Callable[[int], None] | None = None,
+    driver: Driver | None = None,
 ) -> dict[str, Any]:
     """Record ``episodes`` episodes (the first reset with ``seed``, the others continue its world) and score
     the configured intention model and the other ``models`` on them.
@@ -572,12 +589,13 @@ def evaluate_intent(
     :param seed: seed of the first reset (use seeds the model was not trained on)
     :param models: the models to score beside the configured one (``learned``, ``physics``)
     :param progress: called with policy steps simulated
-    :return: ``{"settings", "operating", "models": {name: scores}}``
+    :param driver: the ego's driver (see :func:`record_episodes`); ``None``: the autopilot
+    :return: ``{"settings", "operating", "models": {name: scores}, "driver"}``
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1 (got {episodes})")
     intention = config.twin.intention
-    recorded = record_episodes(config, [seed] + [None] * (episodes - 1), progress=progress)
+    recorded = record_episodes(config, [seed] + [None] * (episodes - 1), progress=progress, driver=driver)
     names = [intention.model] + [m for m in models if m != intention.model]
     scores = {}
     for name in names:
@@ -586,9 +604,10 @@ def evaluate_intent(
         except ValueError as exc:
             raise ConfigError(f"twin.intention: {exc}") from None
         scores[name] = score_model(recorded, model, intention)
-    cfg = eval_config(config)
+    cfg = eval_config(config, driven=driver is not None)
     return {
         "configured_model": intention.model,
+        "driver": driver.name if driver is not None else "autopilot",
         "operating": {"horizon_s": intention.operating_horizon_s, "threshold": intention.threshold},
         "targets": {"recall": 0.90, "at_precision": MIN_PRECISION, "median_lead_s": 2.0},
         "models": scores,
@@ -628,7 +647,7 @@ def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]
 
 
 def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
-                     progress: Callable[[int], None] | None = None) -> list[dict[str, Any]]:
+                     progress: Callable[[int], None] | None = None, driver: Driver | None = None) -> list[dict[str, Any]]:
     """The uplink sweep (``SWEEP`` one at a time, then the degraded uplink,
     :data:`~dt_highway.evaluation.twin.UPLINK_STRESS`) of the configured model.
 
@@ -636,7 +655,7 @@ def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
     """
     rows = []
     for name, value, extra in uplink_sweep_runs(SWEEP):
-        res = evaluate_intent(merge(config, extra), episodes, seed, models=(), progress=progress)
+        res = evaluate_intent(merge(config, extra), episodes, seed, models=(), progress=progress, driver=driver)
         rows.append({"parameter": name, "value": value, **headline(res)})
     return rows
 
@@ -654,7 +673,9 @@ def _f(x: float, digits: int = 3) -> str:
 def format_intent(result: dict[str, Any]) -> list[str]:
     """The lines ``twin-eval --intent`` prints: one block per model (the configured one first)."""
     op = result["operating"]
-    lines = [(f"lane-change intention, {result['episodes']} episodes from seed {result['seed']} "
+    driver = result.get("driver", "autopilot")
+    by = "" if driver == "autopilot" else f", the ego driven by {driver}"
+    lines = [(f"lane-change intention, {result['episodes']} episodes from seed {result['seed']}{by} "
               f"(operating point: H = {op['horizon_s']:g} s, threshold {op['threshold']:g})")]
     for name, s in result["models"].items():
         head = headline(result, name)

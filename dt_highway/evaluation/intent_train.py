@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from dt_highway.config import DTConfig, merge
+from dt_highway.drivers import Driver
 from dt_highway.evaluation.intent import Episode, Truth, record_episodes
 from dt_highway.twin.intention import HIDDEN, OWN_FEATURES, SIDE_FEATURES, save_weights
 
@@ -169,6 +170,7 @@ def train_intention(
     epochs: int = 25,
     alternate: dict[str, Any] | None = None,
     progress: Callable[[str, int], None] | None = None,
+    driver: Driver | None = None,
 ) -> dict[str, Any]:
     """Record training episodes, fit the network, write the weights.
 
@@ -180,6 +182,8 @@ def train_intention(
     :param alternate: a partial configuration the odd seeds also take (a mix of two worlds, e.g. with the
         dangerous cut-in), ``None`` for one world
     :param progress: called with ``("record", policy steps)`` and ``("fit", 1)`` per epoch
+    :param driver: the ego's driver in the recordings (``config`` merged with its condition and overrides);
+        ``None``: the autopilot
     :return: a summary (samples, label counts, losses, seeds)
     """
     if episodes < 1:
@@ -187,15 +191,18 @@ def train_intention(
     seeds = [seed0 + i for i in range(episodes)]
     step = (lambda n: progress("record", n)) if progress else None
     if alternate:
-        recorded = record_episodes(config, seeds[::2], with_preroll=True, progress=step)
-        recorded += record_episodes(merge(config, alternate), seeds[1::2], with_preroll=True, progress=step)
+        recorded = record_episodes(config, seeds[::2], with_preroll=True, progress=step, driver=driver)
+        recorded += record_episodes(merge(config, alternate), seeds[1::2], with_preroll=True, progress=step,
+                                    driver=driver)
     else:
-        recorded = record_episodes(config, seeds, with_preroll=True, progress=step)
+        recorded = record_episodes(config, seeds, with_preroll=True, progress=step, driver=driver)
     data = dataset(recorded)
     mean, scale, layers, losses = fit(data, epochs=epochs, hidden=HIDDEN,
                                       progress=(lambda n: progress("fit", n)) if progress else None)
     meta = {"seeds": f"{seeds[0]}-{seeds[-1]}", "epochs": str(epochs), "samples": str(len(data["y"])),
             "alternate": json.dumps(alternate or {}, sort_keys=True)}
+    if driver is not None:
+        meta["driver"] = driver.name
     save_weights(out, TRAINED_HORIZONS_S, mean, scale, layers, meta)
     y = data["y"]
     return {
