@@ -305,7 +305,7 @@ def test_warning_runs_precision_and_lead_time_by_hand():
 
 
 def test_when_the_driver_decided_is_the_last_switch_of_its_target_lane_seen():
-    from dt_highway.evaluation.intent import _Recorder, cut_in_scores, view_samples
+    from dt_highway.evaluation.intent import _Recorder, cut_in_scores, format_intent, headline, view_samples
 
     rec = _Recorder(0.0)
     for t, target in [(0.0, 2), (0.1, 2), (0.2, 1), (0.3, 1), (0.4, 2), (0.5, 1), (0.6, 1)]:
@@ -321,6 +321,17 @@ def test_when_the_driver_decided_is_the_last_switch_of_its_target_lane_seen():
     assert scores["median_decided_before_s"] == pytest.approx(0.6)
     assert scores["by_maneuver"]["gentle"]["median_decided_before_s"] == pytest.approx(0.6)
     assert scores["by_maneuver"]["gentle"]["median_lead_s"] == pytest.approx(1.5)  # warned from 1.0 s
+    assert scores["share_warned_1.5s_ahead"] == pytest.approx(1.0) and scores["share_warned_2s_ahead"] == 0.0
+    # the same share at the operating threshold in the headline and the printed line (the overlay's goal is 0.85)
+    late = cut_in_scores([ep], [Truth(ep.truth, 0.1)], [view_samples(ep, probs, 0)], 0.95, 1.0)  # never warned
+    assert late["share_warned_1.5s_ahead"] == 0.0
+    for sc, shown in ((scores, "1.000"), (late, "0.000")):
+        result = {"configured_model": "learned", "operating": {"horizon_s": 1.0, "threshold": 0.5}, "episodes": 1,
+                  "seed": 0, "models": {"learned": {"per_horizon": [], "cut_ins": [
+                      {"horizon_s": 1.0, "at_threshold": {**sc, "by_maneuver": {}}, "best": None, "longest_lead": None,
+                       "recall_at_precision": 0.0}]}}}
+        assert headline(result)["op_share_warned_1_5s_ahead"] == float(shown)
+        assert f"warned >= 1.5 s ahead {shown}" in "\n".join(format_intent(result))
 
 
 def test_a_warning_after_the_overlap_or_long_before_is_no_lead():

@@ -623,7 +623,8 @@ def _settings(cfg: DTConfig) -> dict[str, Any]:
 
 def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]:
     """The numbers of one model at the operating horizon: per-horizon AUCs, cut-in recall at precision
-    >= 0.80, its median lead, and precision / recall / lead at the operating threshold."""
+    >= 0.80, its median lead, and precision / recall / lead / share of cut-ins warned >= 1.5 s ahead at the
+    operating threshold."""
     name = model or result["configured_model"]
     s = result["models"][name]
     h = result["operating"]["horizon_s"]
@@ -642,6 +643,7 @@ def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]
         "op_precision": op["precision"],
         "op_recall": op["recall"],
         "op_median_lead_s": op["median_lead_s"],
+        "op_share_warned_1_5s_ahead": op.get("share_warned_1.5s_ahead", float("nan")),
         "n_cut_ins": op["n_cut_ins"],
     }
 
@@ -689,7 +691,8 @@ def format_intent(result: dict[str, Any]) -> list[str]:
                      f"recall {_f(head['recall_at_precision_0_80'])} at precision >= {MIN_PRECISION:.2f} (threshold "
                      f"{_f(head['threshold_there'])}, median lead {_f(head['median_lead_s_there'], 2)} s); at the operating "
                      f"threshold precision {_f(head['op_precision'])}, recall {_f(head['op_recall'])}, median lead "
-                     f"{_f(head['op_median_lead_s'], 2)} s; the longest median lead with precision >= "
+                     f"{_f(head['op_median_lead_s'], 2)} s, warned >= 1.5 s ahead {_f(head['op_share_warned_1_5s_ahead'])} "
+                     f"(the threat overlay's goal: 0.85); the longest median lead with precision >= "
                      f"{MIN_PRECISION:.2f} and recall >= {MIN_RECALL:.2f}: {_f(head['longest_median_lead_s'], 2)} s "
                      f"(threshold {_f(head['threshold_longest_lead'])})")
         lines.append(_by_kind(s, op["horizon_s"]))
