@@ -57,8 +57,8 @@ from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, open_wheel, parse
 from dt_highway.hmi.keys import KeyScript, KeyScriptError
 from dt_highway.hmi.replay import replay_trial
 from dt_highway.hmi.session import condition_order, run_session
+from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
-from dt_highway.metrics.trial_log import interrupted_by_user
 from dt_highway.rl.config import load_train_config
 from dt_highway.rl.files import sidecar_path
 from dt_highway.study import find_file, freeze_inputs, is_completed, plan, run_study
@@ -171,7 +171,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     if args.intent:
         return _twin_eval_intent(args)
     if args.sweep or args.driver is not None:
-        raise ConfigError(f"{'--sweep' if args.sweep else '--driver'} goes with --intent")
+        given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None)) if on]
+        raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
     episodes = args.episodes or 3
     steps = episodes * episode_steps(cfg)

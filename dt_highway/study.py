@@ -43,11 +43,11 @@ from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
+from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
     TrialWriter,
-    interrupted_by_user,
     load_trial,
     write_parquet,
 )

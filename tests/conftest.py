@@ -18,3 +18,15 @@ def small_config() -> dict:
     import copy
 
     return copy.deepcopy(SMALL)
+
+
+def numba_interrupt() -> SystemError:
+    """What Ctrl-C during a numba-compiled call raises: a SystemError whose cause is the KeyboardInterrupt
+    (``tests/test_interrupts.py`` checks it on the real thing)."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as ki:
+            raise SystemError("CPUDispatcher(<function _perspective>) returned a result with an exception set") from ki
+    except SystemError as err:
+        return err

@@ -423,7 +423,8 @@ def test_a_driver_model_can_drive_the_ego_in_the_recordings_and_bad_driver_optio
     lefty = Lefty()
     driven = record_episodes(cfg, [0, None], driver=lefty)
     auto = record_episodes(cfg, [0])
-    assert lefty.seeds == [0, 1] and lefty.calls >= 2 * 4 * cfg.highway.policy_frequency
+    record_episodes(cfg, [5, None], driver=lefty)  # the driver's seeds follow the first episode's
+    assert lefty.seeds == [0, 1, 5, 6] and lefty.calls >= 4 * 4 * cfg.highway.policy_frequency
     assert {v[4] for v in auto[0].views} == {1}  # seed 0 starts in lane 1; the autopilot keeps it
     driven_lanes = [v[4] for v in driven[0].views]
     assert driven_lanes[0] == 1 and driven_lanes[-1] == 0  # the driver moved the ego to the left lane

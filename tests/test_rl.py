@@ -247,12 +247,15 @@ def test_vision_setting_trains_and_drives_in_both_conditions(tmp_path):
         assert result["mean_steps"] > 0
 
 
-def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("inside_numba", [False, True])
+def test_an_interrupted_training_keeps_what_it_learned(tmp_path, monkeypatch, capsys, inside_numba):
+    """Ctrl-C, also when it lands in numba code (a SystemError caused by it), keeps what was learned."""
+    from conftest import numba_interrupt
     from stable_baselines3 import PPO
 
     def stop(self, *args, **kwargs):
         self.num_timesteps = 64
-        raise KeyboardInterrupt
+        raise numba_interrupt() if inside_numba else KeyboardInterrupt
 
     monkeypatch.setattr(PPO, "learn", stop)
     cfg = tmp_path / "tiny.toml"

@@ -4,9 +4,11 @@ the length of a real trial (one sample per simulation step, none at reset)."""
 import math
 
 import pytest
+from conftest import numba_interrupt
 
+from dt_highway.interrupts import interrupted_by_user
 from dt_highway.metrics.safety import SafetySample
-from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, interrupted_by_user, load_trial
+from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, load_trial
 from dt_highway.study import TrialSpec, run_trial
 
 
@@ -58,21 +60,10 @@ def test_a_120_s_trial_at_15_hz_has_1800_samples(tmp_path):
     assert not result["metrics"]["cut_short"]
 
 
-def _numba_interrupt() -> SystemError:
-    """What Ctrl-C during a numba-compiled call raises: a SystemError whose cause is the KeyboardInterrupt."""
-    try:
-        try:
-            raise KeyboardInterrupt
-        except KeyboardInterrupt as ki:
-            raise SystemError("CPUDispatcher(<function _perspective>) returned a result with an exception set") from ki
-    except SystemError as err:
-        return err
-
-
 def test_ctrl_c_inside_a_numba_function_closes_the_log_as_interrupted_not_as_an_error(tmp_path):
-    assert interrupted_by_user(_numba_interrupt()) and interrupted_by_user(KeyboardInterrupt())
+    assert interrupted_by_user(numba_interrupt()) and interrupted_by_user(KeyboardInterrupt())
     assert not interrupted_by_user(SystemError("a real error")) and not interrupted_by_user(None)
-    for name, exc, reason in (("ki", _numba_interrupt(), "interrupted by the user"),
+    for name, exc, reason in (("ki", numba_interrupt(), "interrupted by the user"),
                               ("err", SystemError("a real error"), "SystemError: a real error")):
         with pytest.raises(SystemError), TrialWriter(tmp_path / name, {"driver": "x"}):
             raise exc
@@ -91,7 +82,7 @@ def test_a_trial_interrupted_inside_a_numba_function_raises_ctrl_c_and_a_real_er
     def perceive(self):
         calls.append(1)
         if len(calls) == 5:
-            raise _numba_interrupt() if interrupt else SystemError("a real error")
+            raise numba_interrupt() if interrupt else SystemError("a real error")
         return original(self)
 
     original = study.DriverSeat.perceive

@@ -528,6 +528,20 @@ def test_a_driver_looking_for_the_truth_in_a_study_trial_finds_nothing(tmp_path,
     assert not snoop.found, "\n".join(snoop.found[:20])
 
 
+def test_a_driver_looking_for_the_truth_in_the_intention_recordings_finds_nothing():
+    """``twin-eval --intent --driver`` / ``train-intent --driver``: the recording env carries the truth
+    recorder; the driver at the wheel gets its seat's perceptions only."""
+    from dt_highway.evaluation.intent import record_episodes
+
+    snoop = Snoop()
+    cfg = load_config(str(ROOT / "envs/highway-trial.toml"), ["highway.duration=3", "highway.vehicles_count=12",
+                                                               "twin.preroll_s=4"])
+    episodes = record_episodes(cfg, [3, None], driver=snoop)
+    assert len(episodes) == 2 and len(episodes[0].truth) > 0  # the recorder had the truth beside the driver
+    assert snoop.decisions >= 2 * 3 * cfg.highway.policy_frequency
+    assert not snoop.found, "\n".join(snoop.found[:20])
+
+
 # ----------------------------------------------------------------------------- (c) a driver writing into the env
 def _arrays(obj: object, path: str = "perception") -> Iterator[tuple[str, np.ndarray]]:
     """Every array reachable in a perception (its records, dicts and sequences)."""

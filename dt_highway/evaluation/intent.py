@@ -219,12 +219,14 @@ def record_episodes(
     :param with_preroll: also record the pre-roll (training data); else from ``t = 0`` on
     :param progress: called with policy steps simulated (see :func:`~dt_highway.evaluation.twin.episode_steps`)
     :param driver: the ego's driver, acting on what its :class:`~dt_highway.env.seat.DriverSeat` perceives
-        (reset with each episode's seed, or its index when the seed is ``None``); ``None``: the autopilot
+        (reset with each episode's seed; an episode that continues the world, seed ``None``, gives it the
+        first seed plus the episode's index); ``None``: the autopilot
     :return: one :class:`Episode` per seed (a driven episode ends early at a collision)
     """
     cfg = eval_config(config, driven=driver is not None)
     env = RecordingEnv(config=cfg.to_dict())
     out = []
+    first = next((s for s in seeds if s is not None), 0)  # the driver's seeds: first, first + 1, ...
     try:
         for i, seed in enumerate(seeds):
             env.recorder = _Recorder(-math.inf if with_preroll else 0.0)
@@ -232,7 +234,7 @@ def record_episodes(
             seat = None
             if driver is not None:
                 seat = DriverSeat(env, driver.senses)
-                driver.reset(seed if seed is not None else i)
+                driver.reset(seed if seed is not None else first + i)
             if progress is not None:
                 progress(int(round(cfg.twin.preroll_s * cfg.highway.policy_frequency)))
             rec = env.recorder

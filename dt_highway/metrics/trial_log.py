@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway._version import __version__
+from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import json_safe
 from dt_highway.metrics.overlay_metrics import overlay_metrics
 from dt_highway.metrics.safety import trial_metrics
@@ -110,25 +111,6 @@ def git_commit(directory: Path = PACKAGE_DIR) -> str | None:
     if head.returncode != 0 or not head.stdout.strip():
         return None
     return head.stdout.strip() + ("-dirty" if dirty.returncode == 0 and dirty.stdout.strip() else "")
-
-
-def interrupted_by_user(exc: BaseException | None) -> bool:
-    """Whether an exception is Ctrl-C (a :class:`KeyboardInterrupt`) or was raised because of one.
-
-    A :class:`KeyboardInterrupt` that a signal handler raises while a numba-compiled function runs
-    reaches Python as ``SystemError: CPUDispatcher(...) returned a result with an exception set``,
-    whose cause is the interrupt: that, too, is the user's interrupt, not a failure of the trial.
-
-    :param exc: the exception (``None``: no exception)
-    :return: whether it or an exception in its chain of causes and contexts is a KeyboardInterrupt
-    """
-    seen: set[int] = set()
-    while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
-        seen.add(id(exc))
-        exc = exc.__cause__ or exc.__context__
-    return False
 
 
 class TrialWriter:

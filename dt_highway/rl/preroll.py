@@ -30,6 +30,7 @@ import gymnasium as gym
 
 from dt_highway.config import DTConfig
 from dt_highway.env import DTHighwayEnv
+from dt_highway.interrupts import interrupted_by_user
 
 HELPER_NICE = 10
 """How much lower the helper's CPU priority is than the worker's (``os.nice`` increment)"""
@@ -206,6 +207,9 @@ def _main() -> None:
         _serve(sys.stdin.buffer, answers)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole process group; the worker left
         pass
+    except SystemError as err:  # Ctrl-C inside numba code (dt_highway.interrupts)
+        if not interrupted_by_user(err):
+            raise
 
 
 if __name__ == "__main__":

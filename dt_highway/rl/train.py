@@ -48,6 +48,7 @@ from tqdm.auto import tqdm
 
 from dt_highway.agent_config import RewardConfig
 from dt_highway.config import ConfigError, DTConfig, merge
+from dt_highway.interrupts import interrupted_by_user
 from dt_highway.rl.config import TrainConfig
 from dt_highway.rl.curves import write_curve
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
@@ -284,6 +285,20 @@ def _save(model: BaseAlgorithm, out: Path, meta: dict[str, Any]) -> None:
         print(f"no training curve: {err}", file=sys.stderr)
 
 
+def _learn(model: BaseAlgorithm, timesteps: int, callback: CallbackList) -> bool:
+    """``model.learn``, stopped by Ctrl-C (also one that arrives inside numba code, see :mod:`dt_highway.interrupts`).
+
+    :return: whether it was interrupted (what was learned is kept)
+    """
+    try:
+        model.learn(timesteps, callback=callback)
+    except (KeyboardInterrupt, SystemError) as err:
+        if not interrupted_by_user(err):
+            raise
+        return True
+    return False
+
+
 def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_envs: int | None = None,
           tensorboard_dir: str | None = None, progress: bool = True, lean: bool = True) -> dict[str, Any]:
     """Train a policy and save it with its metadata and training curve.
@@ -352,10 +367,7 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
         if progress:
             callbacks.append(_Progress(cfg.timesteps))
         t0 = time.perf_counter()
-        try:
-            model.learn(cfg.timesteps, callback=CallbackList(callbacks))
-        except KeyboardInterrupt:
-            interrupted = True  # keep what was learned: saved below, marked as interrupted
+        interrupted = _learn(model, cfg.timesteps, CallbackList(callbacks))  # keep what was learned if interrupted
         wall = time.perf_counter() - t0
     finally:
         _close(venv)
