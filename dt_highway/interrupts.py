@@ -4,8 +4,11 @@ A :class:`KeyboardInterrupt` that a signal handler raises while a numba-compiled
 reaches Python as ``SystemError: CPUDispatcher(...) returned a result with an exception set``
 (CPython's check of a C call that returned a value with an error set), whose ``__cause__`` is the
 interrupt. The camera, the traffic core and the safety metrics run numba code at every step, so a
-Ctrl-C, a SIGTERM turned into one, or Ray cancelling a task lands there often; every place that
-handles Ctrl-C asks :func:`interrupted_by_user` instead of catching ``KeyboardInterrupt`` alone.
+Ctrl-C, a SIGTERM turned into one, or Ray cancelling a task can land there (measured: about 1 in
+300 interrupts of an ADAS env step, 2 in 3 of a loop of camera projections). The places that handle
+Ctrl-C while simulating (a study's trials, RL training, the pre-roll helper, the command line) ask
+:func:`interrupted_by_user` instead of catching ``KeyboardInterrupt`` alone; the keyboard trials
+simulate in a thread that never receives signals.
 """
 
 from __future__ import annotations
