@@ -25,8 +25,8 @@ def test_every_interrupt_fired_into_numba_code_is_recognised_as_the_users():
     kinds = []
     try:
         for _ in range(40):
-            signal.setitimer(signal.ITIMER_REAL, 0.0003)
-            try:
+            try:  # the timer starts inside the try: however late the signal is handled, it is caught here
+                signal.setitimer(signal.ITIMER_REAL, 0.0003)
                 while True:
                     _perspective(points, 1.0, 1.0, 0.0, 0.0, 0.1)
             except (KeyboardInterrupt, SystemError) as err:
