@@ -1261,10 +1261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f" '{exc.filename}'" if exc.filename else ""
         print(f"dt-highway {args.command}: error: cannot write{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"dt-highway {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except SystemError as exc:  # Ctrl-C inside a numba-compiled function arrives as a SystemError caused by it
+    except (KeyboardInterrupt, SystemError) as exc:  # SystemError: Ctrl-C inside numba code (dt_highway.interrupts)
         if not interrupted_by_user(exc):
             raise
         print(f"dt-highway {args.command}: interrupted", file=sys.stderr)

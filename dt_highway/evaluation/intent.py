@@ -204,6 +204,11 @@ def eval_config(config: DTConfig, driven: bool = False) -> DTConfig:
     return merge(config, {"ego": {"autopilot": True}, "highway": {"initial_lane_id": None}})
 
 
+def _at_the_wheel(driver: Driver, seat: DriverSeat) -> Callable[[], np.ndarray]:
+    """The driver's next action, from what its seat perceives now."""
+    return lambda: np.asarray(driver.act(seat.perceive()), dtype=float)
+
+
 def record_episodes(
     config: DTConfig,
     seeds: Sequence[int | None],
@@ -231,18 +236,16 @@ def record_episodes(
         for i, seed in enumerate(seeds):
             env.recorder = _Recorder(-math.inf if with_preroll else 0.0)
             env.reset(seed=seed)
-            seat = None
+            act: Callable[[], np.ndarray] = env.action_space.sample  # the autopilot ignores the action
             if driver is not None:
-                seat = DriverSeat(env, driver.senses)
                 driver.reset(seed if seed is not None else first + i)
+                act = _at_the_wheel(driver, DriverSeat(env, driver.senses))
             if progress is not None:
                 progress(int(round(cfg.twin.preroll_s * cfg.highway.policy_frequency)))
             rec = env.recorder
             done = False
             while not done:
-                action = env.action_space.sample() if seat is None or driver is None else (
-                    np.asarray(driver.act(seat.perceive()), dtype=float))
-                _, _, terminated, truncated, info = env.step(action)
+                _, _, terminated, truncated, info = env.step(act())
                 lane = int(env.vehicle.lane_index[2])
                 rec.cut_ins += [
                     {"t_s": float(c["t_s"]), "vehicle_id": int(c["vehicle_id"]), "gap_m": float(c["gap_m"]),
