@@ -46,6 +46,7 @@ from dt_highway.evaluation.intent import (
     run_intent_sweep,
     sweep_steps,
 )
+from dt_highway.evaluation.intent_oracle import OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
@@ -170,8 +171,9 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
         args.overrides = [f"traffic.population={args.population}", *args.overrides]
     if args.intent:
         return _twin_eval_intent(args)
-    if args.sweep or args.driver is not None:
-        given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None)) if on]
+    given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None),
+                                   ("--oracle", args.oracle is not None)) if on]
+    if given:
         raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
     episodes = args.episodes or 3
@@ -226,13 +228,16 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
     cfg = _config(args, extra)
     episodes = args.episodes or INTENT_EPISODES
     result: dict[str, Any] | list[dict[str, Any]]
+    if args.sweep and args.oracle is not None:
+        raise ConfigError("--oracle scores one setting: leave out --sweep")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
         lines = format_sweep(result)
     else:
         with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
-            result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver)
+            oracle = None if args.oracle is None else OracleSettings(rollouts=args.oracle, seed=args.seed)
+            result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))
     if args.out:
@@ -961,6 +966,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--driver", metavar="FILE",
                    help="with --intent: this driver (e.g. agents/human.toml) drives the ego, in the baseline condition, "
                    "as in a study (default: the autopilot, 25 m/s in its lane)")
+    p.add_argument("--oracle", type=_positive(int, "--oracle"), metavar="N",
+                   help="with --intent: also score an oracle that simulates N futures of the simulator's whole state "
+                   "at every estimate (drivers' minds included): about how far ahead lane changes can be foreseen "
+                   "at all; N = 8 about quadruples the run time")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

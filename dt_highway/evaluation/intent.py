@@ -52,6 +52,7 @@ from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
 from dt_highway.drivers import Driver
 from dt_highway.env import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
+from dt_highway.evaluation.intent_oracle import Oracle, OracleSettings
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
 from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model
 from dt_highway.world.traffic import EGO_ID, vehicle_id
@@ -79,6 +80,8 @@ SWEEP = (
     ("rate_hz", "twin.uplink.rate_hz", (10.0, 5.0, 2.0, 1.0)),
 )
 """One-at-a-time sweep of the uplink (the other settings at their configured values)"""
+ORACLE = "oracle"
+"""The oracle's name among the scored models"""
 CUT_IN_GAP_M = 60.0
 """Cut-ins are counted within this bumper gap (the safety monitor's range) [m]"""
 
@@ -96,6 +99,8 @@ class Episode:
     :param cut_ins: the safety monitor's cut-ins in front of the ego (``t_s``, ``vehicle_id``, ``gap_m``,
         ``driver_type``, ``maneuver``)
     :param t_end_s: last simulation time recorded [s]
+    :param oracle: the oracle's ``(N, H, 3)`` probabilities for each of ``tables`` (recorded with an
+        :class:`~dt_highway.evaluation.intent_oracle.Oracle`), else ``None``
     """
 
     dt_s: float
@@ -104,13 +109,17 @@ class Episode:
     views: list[tuple[float, float, np.ndarray, np.ndarray, int]]
     cut_ins: list[dict[str, Any]]
     t_end_s: float
+    oracle: list[np.ndarray] | None = None
 
 
 class _Recorder:
-    """Collects an :class:`Episode` from the env at every simulation step from ``from_s`` on."""
+    """Collects an :class:`Episode` from the env at every simulation step from ``from_s`` on
+    (with an ``oracle``, also its estimate for every intention table)."""
 
-    def __init__(self, from_s: float) -> None:
+    def __init__(self, from_s: float, oracle: Oracle | None = None) -> None:
         self.from_s = from_s
+        self.oracle = oracle
+        self.oracle_probs: list[np.ndarray] = []
         self.rows: list[tuple[float, int, int, bool]] = []
         self.tables: list[tuple[float, IntentionInputs]] = []
         self.views: list[tuple[float, float, np.ndarray, np.ndarray, int]] = []
@@ -141,6 +150,9 @@ class _Recorder:
         if table is not None and table is not self._table:
             self._table = table
             self.tables.append((table.t_s - env.twin_offset_s, table.inputs))
+            if self.oracle is not None:
+                self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
+                                                              table.inputs.vehicle_ids, table.inputs.lane))
         view = env.twin_view
         if view is not None and view is not self._view:
             self._view = view
@@ -164,7 +176,8 @@ class _Recorder:
 
     def episode(self, dt_s: float) -> Episode:
         truth = np.array(self.rows, dtype=float).reshape(-1, 4)
-        return Episode(dt_s, truth, self.tables, self.views, self.cut_ins, self.t_s)
+        return Episode(dt_s, truth, self.tables, self.views, self.cut_ins, self.t_s,
+                       self.oracle_probs if self.oracle is not None else None)
 
 
 class RecordingEnv(DTHighwayEnv):
@@ -215,6 +228,7 @@ def record_episodes(
     with_preroll: bool = False,
     progress: Callable[[int], None] | None = None,
     driver: Driver | None = None,
+    oracle: OracleSettings | None = None,
 ) -> list[Episode]:
     """Run and record episodes of one env (ego on the autopilot, or driven by ``driver``).
 
@@ -226,6 +240,7 @@ def record_episodes(
     :param driver: the ego's driver, acting on what its :class:`~dt_highway.env.seat.DriverSeat` perceives
         (reset with each episode's seed; an episode that continues the world, seed ``None``, gives it the
         first seed plus the episode's index); ``None``: the autopilot
+    :param oracle: also record the oracle's estimates (:mod:`~dt_highway.evaluation.intent_oracle`)
     :return: one :class:`Episode` per seed (a driven episode ends early at a collision)
     """
     cfg = eval_config(config, driven=driver is not None)
@@ -234,7 +249,9 @@ def record_episodes(
     first = next((s for s in seeds if s is not None), 0)  # the driver's seeds: first, first + 1, ...
     try:
         for i, seed in enumerate(seeds):
-            env.recorder = _Recorder(-math.inf if with_preroll else 0.0)
+            seer = None if oracle is None else Oracle(
+                OracleSettings(oracle.rollouts, oracle.period_s, oracle.seed + i), tuple(cfg.twin.intention.horizons_s))
+            env.recorder = _Recorder(-math.inf if with_preroll else 0.0, seer)
             env.reset(seed=seed)
             act: Callable[[], np.ndarray] = env.action_space.sample  # the autopilot ignores the action
             if driver is not None:
@@ -553,9 +570,14 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
 
 def score_model(episodes: Sequence[Episode], model: IntentionModel, intention: IntentionConfig) -> dict[str, Any]:
     """All scores of one model on recorded episodes (see the module docstring)."""
-    truths = [Truth(ep.truth, ep.dt_s) for ep in episodes]
     probs = [predictions(model, ep.tables) for ep in episodes]
-    horizons = tuple(model.horizons_s)
+    return score_probs(episodes, probs, tuple(model.horizons_s), intention)
+
+
+def score_probs(episodes: Sequence[Episode], probs: Sequence[list[np.ndarray]], horizons: tuple[float, ...],
+                intention: IntentionConfig) -> dict[str, Any]:
+    """All scores of estimates ``probs`` (per episode, one ``(N, H, 3)`` array per recorded table)."""
+    truths = [Truth(ep.truth, ep.dt_s) for ep in episodes]
     per_horizon = vehicle_scores(episodes, truths, probs, horizons, intention.threshold)
     cut_ins = []
     for k, h in enumerate(horizons):
@@ -585,9 +607,10 @@ def evaluate_intent(
     models: Sequence[str] = ("learned", "physics"),
     progress: Callable[[int], None] | None = None,
     driver: Driver | None = None,
+    oracle: OracleSettings | None = None,
 ) -> dict[str, Any]:
     """Record ``episodes`` episodes (the first reset with ``seed``, the others continue its world) and score
-    the configured intention model and the other ``models`` on them.
+    the configured intention model and the other ``models`` on them (and the oracle's estimates).
 
     :param config: resolved configuration
     :param episodes: number of episodes (>= 1)
@@ -595,12 +618,15 @@ def evaluate_intent(
     :param models: the models to score beside the configured one (``learned``, ``physics``)
     :param progress: called with policy steps simulated
     :param driver: the ego's driver (see :func:`record_episodes`); ``None``: the autopilot
-    :return: ``{"settings", "operating", "models": {name: scores}, "driver"}``
+    :param oracle: also score the oracle (:mod:`~dt_highway.evaluation.intent_oracle`; the simulator's
+        full state: how far ahead a lane change can be foreseen at all), as the model ``"oracle"``
+    :return: ``{"settings", "operating", "models": {name: scores}, "driver", "oracle"}``
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1 (got {episodes})")
     intention = config.twin.intention
-    recorded = record_episodes(config, [seed] + [None] * (episodes - 1), progress=progress, driver=driver)
+    recorded = record_episodes(config, [seed] + [None] * (episodes - 1), progress=progress, driver=driver,
+                               oracle=oracle)
     names = [intention.model] + [m for m in models if m != intention.model]
     scores = {}
     for name in names:
@@ -609,6 +635,9 @@ def evaluate_intent(
         except ValueError as exc:
             raise ConfigError(f"twin.intention: {exc}") from None
         scores[name] = score_model(recorded, model, intention)
+    if oracle is not None:
+        scores[ORACLE] = score_probs(recorded, [ep.oracle or [] for ep in recorded], tuple(intention.horizons_s),
+                                     intention)
     cfg = eval_config(config, driven=driver is not None)
     return {
         "configured_model": intention.model,
@@ -619,6 +648,7 @@ def evaluate_intent(
         "episodes": episodes,
         "seed": seed,
         "settings": _settings(cfg),
+        "oracle": None if oracle is None else {"rollouts": oracle.rollouts, "period_s": oracle.period_s},
     }
 
 
@@ -686,7 +716,7 @@ def format_intent(result: dict[str, Any]) -> list[str]:
               f"(operating point: H = {op['horizon_s']:g} s, threshold {op['threshold']:g})")]
     for name, s in result["models"].items():
         head = headline(result, name)
-        lines.append(f"{name}{' (configured)' if name == result['configured_model'] else ''}:")
+        lines.append(f"{name}{_model_note(result, name)}:")
         for r in s["per_horizon"]:
             lines.append(f"  H {r['horizon_s']:g} s: AUC {_f(r['auc'])}, precision {_f(r['precision'])}, recall "
                          f"{_f(r['recall'])} at threshold, target lane right {_f(r['target_lane_accuracy'])} "
@@ -702,6 +732,15 @@ def format_intent(result: dict[str, Any]) -> list[str]:
                      f"(threshold {_f(head['threshold_longest_lead'])})")
         lines.append(_by_kind(s, op["horizon_s"]))
     return lines
+
+
+def _model_note(result: dict[str, Any], name: str) -> str:
+    if name == result["configured_model"]:
+        return " (configured)"
+    if name == ORACLE and result.get("oracle"):
+        return (f" (the simulator's whole state, drivers' minds included, {result['oracle']['rollouts']} simulated "
+                "futures per estimate: about how far ahead a lane change can be foreseen at all; not a model)")
+    return ""
 
 
 def _by_kind(scores: dict[str, Any], horizon_s: float) -> str:

@@ -1,0 +1,169 @@
+"""The oracle of ``twin-eval --intent --oracle``: how far ahead lane changes can be foreseen at all.
+
+Evaluation only: it reads the simulator's whole state, which the twin never sees. At an estimate's
+time the oracle copies the road (every vehicle with its driver's parameters, its MOBIL timer, its
+target lane, an open cut-in attempt and its brake plan) and simulates it ``rollouts`` times for the
+longest horizon, with the ego's autopilot and the other drivers' own models. What is still to be
+drawn is drawn afresh in every copy from its own random generator: the time of each driver's next
+cut-in attempt (a Poisson process, so a fresh exponential wait is what the driver's past tells) and
+its style, the victim of an attempt. So the copies share everything that is decided and differ in
+what is not; the share of copies in which a vehicle's centre has moved to the lane on its left
+(right) within ``H`` is its ``P(left)`` (``P(right)``), scored like any model's estimates.
+
+An estimate of the best any predictor could do from the full state, drivers' minds included, not a
+proof of it: the probabilities carry the Monte-Carlo error of ``rollouts`` copies (steps of
+``1 / rollouts``), an estimate reuses the last oracle run for up to ``period_s``, and the oracle sees
+the state of the moment the cloud's estimate is recorded (the cloud's own inputs are older by the
+uplink latency, 0.1 s by default). With a driver at the wheel (``--driver``), the copies' ego keeps
+its last command (the driver's next decisions are not simulated).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from highway_env.road.road import Road
+
+from dt_highway.world.traffic import CutInPolicy, vehicle_id
+
+ORACLE_PERIOD_S = 0.2
+"""The oracle runs at most this often; an estimate in between reuses the last run [s]"""
+
+
+@dataclass(frozen=True)
+class OracleSettings:
+    """How the oracle estimates.
+
+    :param rollouts: simulated futures per estimate (>= 1)
+    :param period_s: the oracle runs at most this often [s]
+    :param seed: seed of the copies' random generators
+    """
+
+    rollouts: int = 8
+    period_s: float = ORACLE_PERIOD_S
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rollouts < 1:
+            raise ValueError(f"the oracle needs at least 1 rollout (got {self.rollouts})")
+
+
+def _policies(road: Road) -> list[CutInPolicy]:
+    return [p for v in road.vehicles if isinstance(p := getattr(v, "cut_in", None), CutInPolicy)]
+
+
+def copy_road(road: Road, rng: np.random.Generator) -> Road:
+    """A copy of ``road`` whose future draws are fresh: every cut-in policy draws from ``rng``, a driver
+    whose next attempt has not opened yet waits a new exponential time (and draws its style anew), and
+    the copy reports no traffic events.
+
+    :param road: the simulator's road (left untouched)
+    :param rng: the copy's random generator
+    :return: the copy
+    """
+    memo: dict[int, object] = {}
+    for p in _policies(road):
+        memo[id(p.rng)] = rng
+        for hook in (p.on_cut_in, p.on_lane_hop):
+            if hook is not None:
+                memo[id(hook)] = None
+    out = copy.deepcopy(road, memo)
+    for v in out.vehicles:
+        policy = getattr(v, "cut_in", None)
+        if isinstance(policy, CutInPolicy) and v.clock_s < policy.next_attempt_s:
+            policy.schedule(v.clock_s)  # memoryless: the wait from now is a fresh draw
+    return out
+
+
+Futures = dict[int, list[tuple[float, int]]]
+"""Per vehicle id, one ``(time [s], new lane)`` per copy in which it changed lane (the first change)"""
+
+
+def rollout_changes(road: Road, vehicle_ids: np.ndarray, horizon_s: float, dt_s: float, rollouts: int,
+                    rng: np.random.Generator) -> Futures:
+    """Simulate ``rollouts`` copies of ``road`` (:func:`copy_road`) for ``horizon_s`` and note each vehicle's first
+    lane change (its centre's lane, as the evaluation's labels).
+
+    :param road: the simulator's road now (left untouched)
+    :param vehicle_ids: the vehicles to follow
+    :param horizon_s: how long to simulate [s]
+    :param dt_s: the simulation step [s]
+    :param rollouts: simulated futures
+    :param rng: draws the copies' generators
+    :return: per vehicle, the ``(time from now [s], new lane)`` of every copy in which it changed lane
+    """
+    wanted = set(vehicle_ids.tolist())
+    out: Futures = {vid: [] for vid in wanted}
+    steps = int(math.ceil(horizon_s / dt_s - 1e-9))
+    for _ in range(rollouts):
+        sim = copy_road(road, np.random.default_rng(int(rng.integers(2**63))))
+        tracked = {vehicle_id(v): (v, int(v.lane_index[2])) for v in sim.vehicles if vehicle_id(v) in wanted}
+        for step in range(1, steps + 1):
+            sim.act()
+            sim.step(dt_s)
+            for vid, (v, lane0) in list(tracked.items()):
+                lane = int(v.lane_index[2])
+                if lane != lane0:
+                    out[vid].append((step * dt_s, lane))
+                    del tracked[vid]
+    return out
+
+
+def intents_from_futures(futures: Futures, rollouts: int, vehicle_ids: np.ndarray, lanes: np.ndarray,
+                         horizons_s: tuple[float, ...], elapsed_s: float = 0.0) -> np.ndarray:
+    """The ``(N, len(horizons_s), 3)`` probabilities of stay / left / right within each horizon, for an estimate made
+    ``elapsed_s`` after the futures were simulated.
+
+    Sides are counted from the estimate's lane, as a model's are: a change into ``lanes[i] - 1`` is *left*, into
+    ``lanes[i] + 1`` *right*; a change into the estimate's own lane (it already puts the vehicle there) or two lanes
+    away counts as staying. A change the futures put before the estimate counts as imminent.
+
+    :param futures: from :func:`rollout_changes`
+    :param rollouts: how many copies ``futures`` were simulated with
+    :param vehicle_ids: the estimate's vehicles, ``(N,)`` (a vehicle without futures stays)
+    :param lanes: each one's lane by the estimate, ``(N,)`` (left = a lower lane id)
+    :param horizons_s: the horizons [s]
+    :param elapsed_s: time from the simulation of the futures to the estimate [s]
+    """
+    probs = np.zeros((len(vehicle_ids), len(horizons_s), 3))
+    probs[:, :, 0] = 1.0
+    for i, (vid, lane) in enumerate(zip(vehicle_ids.tolist(), lanes.tolist(), strict=True)):
+        for t, new_lane in futures.get(vid, []):
+            side = {lane - 1: 1, lane + 1: 2}.get(new_lane, 0)
+            if side == 0:
+                continue
+            within = np.array(horizons_s) + 1e-9 >= t - elapsed_s
+            probs[i, within, 0] -= 1.0 / rollouts
+            probs[i, within, side] += 1.0 / rollouts
+    return np.clip(probs, 0.0, 1.0)
+
+
+class Oracle:
+    """Simulates futures for the recorder (:func:`rollout_changes`) at most every ``settings.period_s``, and turns
+    them into each estimate's probabilities (:func:`intents_from_futures`).
+
+    :param settings: rollouts, period and seed
+    :param horizons_s: the intention model's horizons [s]
+    """
+
+    def __init__(self, settings: OracleSettings, horizons_s: tuple[float, ...]) -> None:
+        self.settings = settings
+        self.horizons_s = horizons_s
+        self.rng = np.random.default_rng(settings.seed)
+        self._last_t = -math.inf
+        self._futures: Futures = {}
+
+    def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+        """:return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]"""
+        if t_s - self._last_t >= self.settings.period_s - 1e-9:
+            self._futures, self._last_t = {}, t_s
+        todo = np.array([v for v in vehicle_ids.tolist() if v not in self._futures], dtype=np.int64)
+        if len(todo):  # a vehicle new since the last run: its futures from now, as if simulated then
+            futures = rollout_changes(road, todo, max(self.horizons_s), dt_s, self.settings.rollouts, self.rng)
+            elapsed = t_s - self._last_t
+            self._futures.update({v: [(t + elapsed, lane) for t, lane in f] for v, f in futures.items()})
+        return intents_from_futures(self._futures, self.settings.rollouts, vehicle_ids, lanes, self.horizons_s,
+                                    t_s - self._last_t)

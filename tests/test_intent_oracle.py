@@ -1,0 +1,137 @@
+"""The oracle of ``twin-eval --intent --oracle``: futures simulated from the whole state, with what is not yet
+decided drawn afresh."""
+
+import math
+
+import numpy as np
+import pytest
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.kinematics import Vehicle
+
+from dt_highway.config import TrafficConfig
+from dt_highway.evaluation.intent_oracle import (
+    Oracle,
+    OracleSettings,
+    copy_road,
+    intents_from_futures,
+    rollout_changes,
+)
+from dt_highway.labels import AGGRESSIVE
+from dt_highway.world.traffic import DriverPopulation, TrafficManager
+
+DT = 1.0 / 15
+HORIZONS = (1.0, 2.0, 3.0)
+
+
+def _scene(next_attempt_s: float):
+    """An ego at constant speed in lane 1 and an aggressive driver 6 m ahead of it in lane 0 whose next cut-in attempt
+    opens at ``next_attempt_s`` (0: open now, the ego in its gap window)."""
+    cfg = TrafficConfig(cut_in_ego_preference=1.0)
+    road = Road(network=RoadNetwork.straight_road_network(3, speed_limit=30), np_random=np.random.default_rng(0))
+    manager = TrafficManager(cfg, DriverPopulation(cfg, 1.0, np.random.default_rng(0)), np.random.default_rng(5))
+    ego = Vehicle(road, road.network.get_lane(("0", "1", 1)).position(200.0, 0), 0.0, 25.0)
+    ego.dt_id = 0
+    ego.lane_index = ("0", "1", 1)
+    driver = next(d for d in manager.population.drivers.values() if d.driver_type == AGGRESSIVE)
+    cutter = manager.make_vehicle(road, driver, ("0", "1", 0), 200.0 + 6.0 + ego.LENGTH, 25.0)
+    cutter.target_speed = 25.0
+    road.vehicles += [ego, cutter]
+    cutter.cut_in.next_attempt_s = next_attempt_s
+    return road, manager, ego, cutter
+
+
+def _p_into_ego_lane(road: Road, cutter, rollouts: int, seed: int = 0) -> np.ndarray:
+    """P(the cutter moves right, into the ego's lane) within 1, 2, 3 s."""
+    ids = np.array([cutter.dt_id])
+    futures = rollout_changes(road, ids, max(HORIZONS), DT, rollouts, np.random.default_rng(seed))
+    p = intents_from_futures(futures, rollouts, ids, np.array([0]), HORIZONS)
+    assert p.shape == (1, 3, 3) and np.allclose(p.sum(axis=2), 1.0)
+    return p[0, :, 2]
+
+
+def test_an_open_cut_in_attempt_is_foreseen_and_the_road_is_left_untouched():
+    road, manager, ego, cutter = _scene(next_attempt_s=0.0)
+    state = [(v.position.copy(), v.speed, v.lane_index) for v in road.vehicles] + [(cutter.target_lane_index, cutter.timer)]
+    p = _p_into_ego_lane(road, cutter, rollouts=8)
+    # decided in the driver's mind: every future has its centre in the ego's lane within 1 s (3 m/s sideways)
+    assert np.all(p == 1.0)
+    for (x0, s0, l0), v in zip(state, road.vehicles, strict=False):
+        assert np.array_equal(x0, v.position) and (s0, l0) == (v.speed, v.lane_index)
+    assert state[-1] == (cutter.target_lane_index, cutter.timer)
+    assert manager.events == [] and cutter.cut_in.next_attempt_s == 0.0
+
+
+@pytest.mark.parametrize("next_attempt_s", [1.0, 100.0])
+def test_the_oracle_does_not_know_when_the_next_attempt_comes(next_attempt_s):
+    # whether the attempt is drawn to open in 1 s or in 100 s, the oracle sees a driver with no open attempt, whose
+    # next one comes at its rate: P(within 3 s) = 1 - exp(-rate 3 s), the aggressive driver's 4/min -> 0.18
+    road, _, _, cutter = _scene(next_attempt_s=next_attempt_s)
+    rate = cutter.cut_in.rate_per_min
+    expected = 1.0 - math.exp(-rate * 3.0 / 60.0)
+    p = _p_into_ego_lane(road, cutter, rollouts=300)
+    assert 0.10 < expected < 0.30
+    assert p[-1] == pytest.approx(expected, abs=0.09)  # ~4 standard errors of 300 futures; less: 3 s is a cut-in's onset
+    assert cutter.cut_in.next_attempt_s == next_attempt_s
+
+
+def test_sides_are_counted_from_the_estimates_lane():
+    futures = {7: [(0.5, 2), (2.5, 0)], 8: []}  # of 4 copies: one moved right at 0.5 s, one left at 2.5 s
+    ids = np.array([7, 8, 9])
+    p = intents_from_futures(futures, 4, ids, np.array([1, 1, 1]), HORIZONS)
+    assert p[0].tolist() == [[0.75, 0.0, 0.25], [0.75, 0.0, 0.25], [0.5, 0.25, 0.25]]
+    assert p[1].tolist() == p[2].tolist() == [[1.0, 0.0, 0.0]] * 3  # no change in any copy; no futures at all
+    # the estimate already puts vehicle 7 in lane 2: the move there is no change, the one to lane 0 is two lanes away
+    assert intents_from_futures(futures, 4, ids[:1], np.array([2]), HORIZONS)[0].tolist() == [[1.0, 0.0, 0.0]] * 3
+    # 0.6 s after the futures were simulated: the move at 0.5 s is imminent, the one at 2.5 s comes within 2 s
+    late = intents_from_futures(futures, 4, ids[:1], np.array([1]), HORIZONS, elapsed_s=0.6)[0]
+    assert late.tolist() == [[0.75, 0.0, 0.25], [0.5, 0.25, 0.25], [0.5, 0.25, 0.25]]
+
+
+def test_copies_draw_from_their_own_generator_and_report_nothing():
+    road, manager, _, cutter = _scene(next_attempt_s=50.0)
+    rng = np.random.default_rng(1)
+    sim = copy_road(road, rng)
+    twin = next(v for v in sim.vehicles if getattr(v, "dt_id", -1) == cutter.dt_id)
+    assert twin is not cutter and twin.cut_in.rng is rng and cutter.cut_in.rng is not rng
+    assert twin.cut_in.on_cut_in is None and twin.cut_in.on_lane_hop is None
+    assert twin.cut_in.next_attempt_s != 50.0
+    assert cutter.cut_in.on_cut_in is not None  # the simulator's own still reports to its traffic manager
+
+
+def test_the_oracle_reuses_its_last_run_within_its_period_and_settings_are_checked():
+    road, _, _, cutter = _scene(next_attempt_s=0.0)
+    oracle = Oracle(OracleSettings(rollouts=2, period_s=0.2), HORIZONS)
+    ids, lanes = np.array([cutter.dt_id]), np.array([0])
+    first = oracle.estimate(road, 0.0, DT, ids, lanes)
+    cutter.cut_in.next_attempt_s = math.inf  # would change the oracle's answer, were it run again
+    assert np.array_equal(oracle.estimate(road, 0.1, DT, ids, lanes), first)
+    assert oracle.estimate(road, 0.0, DT, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).shape == (0, 3, 3)
+    with pytest.raises(ValueError, match="at least 1 rollout"):
+        OracleSettings(rollouts=0)
+
+
+TINY = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=4", "--set", "twin.preroll_s=6",
+        "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40"]
+
+
+def test_twin_eval_scores_the_oracle_on_the_same_estimates_and_its_mistakes_are_one_line_errors(capsys):
+    import json
+
+    from dt_highway.cli import main
+
+    assert main(["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--json", "--quiet", *TINY]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["oracle"] == {"rollouts": 2, "period_s": 0.2}
+    models = result["models"]
+    assert list(models) == ["learned", "physics", "oracle"]
+    for a, b in zip(models["oracle"]["per_horizon"], models["learned"]["per_horizon"], strict=True):
+        assert (a["n_samples"], a["n_positive"]) == (b["n_samples"], b["n_positive"]) and a["n_samples"] > 0
+    assert main(["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--quiet", *TINY]) == 0
+    assert "oracle (the simulator's whole state" in capsys.readouterr().out
+    assert main(["twin-eval", "--oracle", "4", "--quiet", *TINY]) == 2
+    assert "--oracle goes with --intent" in capsys.readouterr().err
+    assert main(["twin-eval", "--intent", "--sweep", "--oracle", "4", "--quiet", *TINY]) == 2
+    assert "leave out --sweep" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["twin-eval", "--intent", "--oracle", "0", "--quiet", *TINY])
+    assert "--oracle must be a finite number > 0 (got 0)" in capsys.readouterr().err
