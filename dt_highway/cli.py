@@ -969,7 +969,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--oracle", type=_positive(int, "--oracle"), metavar="N",
                    help="with --intent: also score an oracle that simulates N futures of the simulator's whole state "
                    "at every estimate (drivers' minds included): about how far ahead lane changes can be foreseen "
-                   "at all; N = 8 about quadruples the run time")
+                   "at all; N = 8 makes the run about 9 times longer")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
