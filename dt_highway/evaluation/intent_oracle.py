@@ -12,10 +12,11 @@ what is not; the share of copies in which a vehicle's centre has moved to the la
 
 An estimate of the best any predictor could do from the full state, drivers' minds included, not a
 proof of it: the probabilities carry the Monte-Carlo error of ``rollouts`` copies (steps of
-``1 / rollouts``), an estimate reuses the last oracle run for up to ``period_s``, and the oracle sees
-the state of the moment the cloud's estimate is recorded (the cloud's own inputs are older by the
-uplink latency, 0.1 s by default). With a driver at the wheel (``--driver``), the copies' ego keeps
-its last command (the driver's next decisions are not simulated).
+``1 / rollouts``), an estimate within ``period_s`` of the last run reuses its futures (shifted by the
+time since, and sides counted from the estimate's own lanes), and the oracle sees the state of the
+moment the cloud's estimate is recorded (the cloud's own inputs are older by the uplink latency,
+0.1 s by default). With a driver at the wheel (``--driver``) the driver's next decisions are not
+simulated: the copies' ego follows its controller's last targets (measured only with the autopilot).
 """
 
 from __future__ import annotations
