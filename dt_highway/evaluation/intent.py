@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -247,10 +247,10 @@ def record_episodes(
     env = RecordingEnv(config=cfg.to_dict())
     out = []
     first = next((s for s in seeds if s is not None), 0)  # the driver's seeds: first, first + 1, ...
+    horizons = tuple(cfg.twin.intention.horizons_s)
     try:
         for i, seed in enumerate(seeds):
-            seer = None if oracle is None else Oracle(
-                OracleSettings(oracle.rollouts, oracle.period_s, oracle.seed + i), tuple(cfg.twin.intention.horizons_s))
+            seer = None if oracle is None else Oracle(replace(oracle, seed=oracle.seed + i), horizons)
             env.recorder = _Recorder(-math.inf if with_preroll else 0.0, seer)
             env.reset(seed=seed)
             act: Callable[[], np.ndarray] = env.action_space.sample  # the autopilot ignores the action

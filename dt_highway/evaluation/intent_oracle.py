@@ -131,12 +131,13 @@ def intents_from_futures(futures: Futures, rollouts: int, vehicle_ids: np.ndarra
     """
     probs = np.zeros((len(vehicle_ids), len(horizons_s), 3))
     probs[:, :, 0] = 1.0
+    horizons = np.asarray(horizons_s) + 1e-9
     for i, (vid, lane) in enumerate(zip(vehicle_ids.tolist(), lanes.tolist(), strict=True)):
         for t, new_lane in futures.get(vid, []):
             side = {lane - 1: 1, lane + 1: 2}.get(new_lane, 0)
             if side == 0:
                 continue
-            within = np.array(horizons_s) + 1e-9 >= t - elapsed_s
+            within = horizons >= t - elapsed_s
             probs[i, within, 0] -= 1.0 / rollouts
             probs[i, within, side] += 1.0 / rollouts
     return np.clip(probs, 0.0, 1.0)
