@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field
-from multiprocessing import get_context
+from multiprocessing import get_context, parent_process
 from pathlib import Path
 from typing import Any, cast
 
@@ -302,6 +302,9 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
 
 _stop_event: Any = None  # in a study's worker process: the study's stop flag (a multiprocessing Event)
 _stopped = False  # in a study's worker process: set by Ctrl-C, after which it starts no trial
+_in_trial = threading.Event()  # in a study's worker process: set while a trial runs
+ORPHAN_GRACE_S = 30.0
+"""A worker whose study process died (SIGKILL, a crash) gives its trial this long to close its log [s]"""
 
 
 def _sigint_seen(signum: int, frame: Any) -> None:
@@ -310,10 +313,28 @@ def _sigint_seen(signum: int, frame: Any) -> None:
 
 
 def _worker_init(stop: Any) -> None:
-    """Start a study's worker process: Ctrl-C between trials is remembered (during one, it interrupts it)."""
+    """Start a study's worker process: Ctrl-C between trials is remembered (during one, it interrupts it),
+    and the worker ends when the study's process does (:func:`_exit_with_parent`)."""
     global _stop_event
     _stop_event = stop
     signal.signal(signal.SIGINT, _sigint_seen)
+    parent = parent_process()
+    if parent is not None:
+        threading.Thread(target=_exit_with_parent, args=(parent,), name="dt-highway-orphan-watch", daemon=True).start()
+
+
+def _exit_with_parent(parent: Any, grace_s: float = ORPHAN_GRACE_S) -> None:
+    """In a worker: wait for the study's process to end. A study that stops normally ends its workers first;
+    one that was killed (SIGKILL, out of memory, a crash) cannot, and its workers would run on as orphans,
+    finishing trials nobody collects and waiting for work forever. Stop the trial under way as Ctrl-C does
+    (its log is closed as aborted, "interrupted by the user", so that resuming runs it again), then exit."""
+    parent.join()
+    if _in_trial.is_set():
+        os.kill(os.getpid(), signal.SIGINT)
+        deadline = time.monotonic() + grace_s
+        while _in_trial.is_set() and time.monotonic() < deadline:
+            time.sleep(0.05)
+    os._exit(1)
 
 
 def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
@@ -325,6 +346,7 @@ def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
     if _stopped or (_stop_event is not None and _stop_event.is_set()):
         return {"status": "cancelled", "directory": spec.directory}
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    _in_trial.set()
     try:
         return run_trial(spec)
     except KeyboardInterrupt:  # its log is closed as aborted, "interrupted by the user"
@@ -332,6 +354,7 @@ def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
         return {"status": "interrupted", "directory": spec.directory}
     finally:
         signal.signal(signal.SIGINT, _sigint_seen)
+        _in_trial.clear()
 
 
 @contextmanager

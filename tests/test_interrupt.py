@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+from contextlib import suppress
 from pathlib import Path
 
 import pytest
@@ -119,6 +120,55 @@ def test_sigterm_to_a_process_pool_study_stops_it_as_ctrl_c_does(tmp_path):
     _check_interrupted(cmd, before, after, output, took)
     time.sleep(1.0)  # no orphan goes on writing
     assert _metas(out) == after
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_a_killed_study_leaves_no_worker_behind_and_their_trials_marked_to_run_again(tmp_path):
+    """SIGKILL (or the OOM killer) gives the study no chance to stop its process pool: before, its workers ran on
+    as orphans, finishing trials nobody collected, then waiting for work forever."""
+    out = tmp_path / "study"
+    env = {**os.environ, "SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}
+    proc = subprocess.Popen(_command(out), cwd=REPO, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not any(m and m[0] == "running" for m in _metas(out).values()):
+            assert proc.poll() is None and time.monotonic() < deadline, "the study ended or stalled before a trial"
+            time.sleep(0.05)
+        workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+        assert len(workers) == 2, workers  # the pool's workers (not multiprocessing's resource tracker)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 60.0
+        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [w for w in workers if _alive(w)], "orphaned workers still running"
+    finally:
+        with suppress(ProcessLookupError):  # whatever is left of the study's process group
+            os.killpg(proc.pid, signal.SIGKILL)
+    metas = _metas(out)
+    assert metas and all(m is not None and (m[0] == "completed" or m == INTERRUPTED) for m in metas.values()), metas
 
 
 @pytest.mark.parametrize("sig, sigint_ignored", [(signal.SIGINT, False), (signal.SIGINT, True), (signal.SIGTERM, False)],
