@@ -32,6 +32,7 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context, parent_process
+from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any, cast
 
@@ -323,7 +324,7 @@ def _worker_init(stop: Any) -> None:
         threading.Thread(target=_exit_with_parent, args=(parent,), name="dt-highway-orphan-watch", daemon=True).start()
 
 
-def _exit_with_parent(parent: Any, grace_s: float = ORPHAN_GRACE_S) -> None:
+def _exit_with_parent(parent: BaseProcess, grace_s: float = ORPHAN_GRACE_S) -> None:
     """In a worker: wait for the study's process to end. A study that stops normally ends its workers first;
     one that was killed (SIGKILL, out of memory, a crash) cannot, and its workers would run on as orphans,
     finishing trials nobody collects and waiting for work forever. Stop the trial under way as Ctrl-C does

@@ -18,8 +18,8 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_ruff() -> None:
-    result = _run("ruff", "check", "--no-fix", "dt_highway", "tests")
-    assert result.returncode == 0, f"ruff check dt_highway tests:\n{result.stdout}{result.stderr}"
+    result = _run("ruff", "check", "--no-fix", "dt_highway", "tests", "notebooks")
+    assert result.returncode == 0, f"ruff check dt_highway tests notebooks:\n{result.stdout}{result.stderr}"
 
 
 def test_mypy() -> None:
