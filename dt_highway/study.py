@@ -303,7 +303,8 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
 
 _stop_event: Any = None  # in a study's worker process: the study's stop flag (a multiprocessing Event)
 _stopped = False  # in a study's worker process: set by Ctrl-C, after which it starts no trial
-_in_trial = threading.Event()  # in a study's worker process: set while a trial runs
+_idle = threading.Event()  # in a study's worker process: set while no trial runs
+_idle.set()
 ORPHAN_GRACE_S = 30.0
 """A worker whose study process died (SIGKILL, a crash) gives its trial this long to close its log [s]"""
 
@@ -330,11 +331,9 @@ def _exit_with_parent(parent: BaseProcess, grace_s: float = ORPHAN_GRACE_S) -> N
     finishing trials nobody collects and waiting for work forever. Stop the trial under way as Ctrl-C does
     (its log is closed as aborted, "interrupted by the user", so that resuming runs it again), then exit."""
     parent.join()
-    if _in_trial.is_set():
+    if not _idle.is_set():
         os.kill(os.getpid(), signal.SIGINT)
-        deadline = time.monotonic() + grace_s
-        while _in_trial.is_set() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        _idle.wait(grace_s)
     os._exit(1)
 
 
@@ -347,7 +346,7 @@ def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
     if _stopped or (_stop_event is not None and _stop_event.is_set()):
         return {"status": "cancelled", "directory": spec.directory}
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    _in_trial.set()
+    _idle.clear()
     try:
         return run_trial(spec)
     except KeyboardInterrupt:  # its log is closed as aborted, "interrupted by the user"
@@ -355,7 +354,7 @@ def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
         return {"status": "interrupted", "directory": spec.directory}
     finally:
         signal.signal(signal.SIGINT, _sigint_seen)
-        _in_trial.clear()
+        _idle.set()
 
 
 @contextmanager

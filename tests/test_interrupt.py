@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from dt_highway import study
+from dt_highway.bench import _children
 from dt_highway.cli import main
 from dt_highway.study import is_completed
 
@@ -122,27 +123,6 @@ def test_sigterm_to_a_process_pool_study_stops_it_as_ctrl_c_does(tmp_path):
     assert _metas(out) == after
 
 
-def _children(pid: int) -> list[int]:
-    """The processes whose parent is ``pid`` (from /proc)."""
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:  # gone meanwhile
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
 def test_a_killed_study_leaves_no_worker_behind_and_their_trials_marked_to_run_again(tmp_path):
     """SIGKILL (or the OOM killer) gives the study no chance to stop its process pool: before, its workers ran on
@@ -156,14 +136,14 @@ def test_a_killed_study_leaves_no_worker_behind_and_their_trials_marked_to_run_a
         while not any(m and m[0] == "running" for m in _metas(out).values()):
             assert proc.poll() is None and time.monotonic() < deadline, "the study ended or stalled before a trial"
             time.sleep(0.05)
-        workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+        workers = [c for c in _children([proc.pid]) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
         assert len(workers) == 2, workers  # the pool's workers (not multiprocessing's resource tracker)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         deadline = time.monotonic() + 60.0
-        while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        while any(study._alive(w) for w in workers) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not [w for w in workers if _alive(w)], "orphaned workers still running"
+        assert not [w for w in workers if study._alive(w)], "orphaned workers still running"
     finally:
         with suppress(ProcessLookupError):  # whatever is left of the study's process group
             os.killpg(proc.pid, signal.SIGKILL)
