@@ -46,7 +46,7 @@ from dt_highway.evaluation.intent import (
     run_intent_sweep,
     sweep_steps,
 )
-from dt_highway.evaluation.intent_oracle import OracleSettings
+from dt_highway.evaluation.intent_oracle import HIDEABLE, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
@@ -152,6 +152,15 @@ def _progress(total: int, desc: str, quiet: bool, unit: str = "step", initial: i
     return tqdm(total=total, desc=desc, unit=unit, disable=quiet, file=sys.stderr, leave=False, initial=initial)
 
 
+def _oracle_hide(text: str) -> frozenset[str]:
+    names = frozenset(n.strip() for n in text.split(",") if n.strip())
+    unknown = sorted(names - set(HIDEABLE))
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"--oracle-hide takes a comma-separated list of {', '.join(HIDEABLE)} "
+                                         f"(got '{text}')")
+    return names
+
+
 def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]:
     def parse(text: str) -> float:
         try:
@@ -172,7 +181,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     if args.intent:
         return _twin_eval_intent(args)
     given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None),
-                                   ("--oracle", args.oracle is not None)) if on]
+                                   ("--oracle", args.oracle is not None),
+                                   ("--oracle-hide", bool(args.oracle_hide))) if on]
     if given:
         raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
@@ -230,13 +240,16 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
     result: dict[str, Any] | list[dict[str, Any]]
     if args.sweep and args.oracle is not None:
         raise ConfigError("--oracle scores one setting: leave out --sweep")
+    if args.oracle_hide and args.oracle is None:
+        raise ConfigError("--oracle-hide goes with --oracle N")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
         lines = format_sweep(result)
     else:
         with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
-            oracle = None if args.oracle is None else OracleSettings(rollouts=args.oracle, seed=args.seed)
+            oracle = None if args.oracle is None else OracleSettings(rollouts=args.oracle, seed=args.seed,
+                                                                     hide=args.oracle_hide)
             result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))
@@ -970,6 +983,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --intent: also score an oracle that simulates N futures of the simulator's whole state "
                    "at every estimate (drivers' minds included): about how far ahead lane changes can be foreseen "
                    "at all; N = 8 makes the run about 9 times longer")
+    p.add_argument("--oracle-hide", type=_oracle_hide, default=frozenset(), metavar="LIST",
+                   help="with --oracle: deny the oracle these parts of the state, comma-separated: "
+                   f"{', '.join(HIDEABLE)} (each replaced by what the twin could assume): which of them the foresight "
+                   "comes from")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -40,10 +40,10 @@ def _scene(next_attempt_s: float):
     return road, manager, ego, cutter
 
 
-def _p_into_ego_lane(road: Road, cutter, rollouts: int, seed: int = 0) -> np.ndarray:
+def _p_into_ego_lane(road: Road, cutter, rollouts: int, seed: int = 0, settings: OracleSettings | None = None) -> np.ndarray:
     """P(the cutter moves right, into the ego's lane) within 1, 2, 3 s."""
     ids = np.array([cutter.dt_id])
-    futures = rollout_changes(road, ids, max(HORIZONS), DT, rollouts, np.random.default_rng(seed))
+    futures = rollout_changes(road, ids, max(HORIZONS), DT, rollouts, np.random.default_rng(seed), settings)
     p = intents_from_futures(futures, rollouts, ids, np.array([0]), HORIZONS)
     assert p.shape == (1, 3, 3) and np.allclose(p.sum(axis=2), 1.0)
     return p[0, :, 2]
@@ -72,6 +72,36 @@ def test_the_oracle_does_not_know_when_the_next_attempt_comes(next_attempt_s):
     assert 0.10 < expected < 0.30
     assert p[-1] == pytest.approx(expected, abs=0.09)  # ~4 standard errors of 300 futures; less: 3 s is a cut-in's onset
     assert cutter.cut_in.next_attempt_s == next_attempt_s
+
+
+def test_an_oracle_denied_the_attempts_does_not_know_that_one_is_open():
+    # the same open attempt that every future above carries out: hidden, it is a fresh Poisson wait like any other
+    road, _, _, cutter = _scene(next_attempt_s=0.0)
+    expected = 1.0 - math.exp(-cutter.cut_in.rate_per_min * 3.0 / 60.0)
+    p = _p_into_ego_lane(road, cutter, rollouts=300, settings=OracleSettings(hide=frozenset({"attempts"})))
+    assert p[-1] == pytest.approx(expected, abs=0.09)
+    assert cutter.cut_in.next_attempt_s == 0.0  # the simulator's driver still has it open
+
+
+def test_what_the_oracle_hides_is_replaced_in_the_copies_only():
+    road, _, ego, cutter = _scene(next_attempt_s=50.0)
+    cutter.target_speed, cutter.timer = 31.0, 0.0
+    x0, y0, v0 = float(cutter.position[0]), float(cutter.position[1]), float(cutter.speed)
+    settings = OracleSettings(hide=frozenset({"positions", "speeds", "timers"}), sigma_position_m=1.0, sigma_speed_mps=0.2)
+    copies = [next(v for v in copy_road(road, np.random.default_rng(k), settings).vehicles if v.dt_id == cutter.dt_id)
+              for k in range(200)]
+    dx = np.array([c.position[0] - x0 for c in copies])
+    dv = np.array([c.speed - v0 for c in copies])
+    assert 0.8 < dx.std() < 1.2 and 0.15 < dv.std() < 0.25 and abs(dx.mean()) < 0.2
+    assert all(c.position[1] == y0 for c in copies)  # lanes stay as they are
+    assert all(c.target_speed == c.speed for c in copies)  # the desired speed is taken to be the present one
+    timers = np.array([c.timer for c in copies])
+    assert timers.min() >= 0.0 and timers.max() < cutter.LANE_CHANGE_DELAY and timers.std() > 0.05
+    ego_copy = next(v for v in copy_road(road, np.random.default_rng(0), settings).vehicles if v.dt_id == 0)
+    assert np.array_equal(ego_copy.position, ego.position) and ego_copy.speed == ego.speed  # the ego is known
+    assert (float(cutter.position[0]), cutter.speed, cutter.target_speed, cutter.timer) == (x0, v0, 31.0, 0.0)
+    with pytest.raises(ValueError, match=r"cannot hide minds \(it can hide: positions, speeds, timers, attempts"):
+        OracleSettings(hide=frozenset({"minds"}))
 
 
 def test_sides_are_counted_from_the_estimates_lane():
@@ -135,3 +165,20 @@ def test_twin_eval_scores_the_oracle_on_the_same_estimates_and_its_mistakes_are_
     with pytest.raises(SystemExit):
         main(["twin-eval", "--intent", "--oracle", "0", "--quiet", *TINY])
     assert "--oracle must be a finite number > 0 (got 0)" in capsys.readouterr().err
+    assert main(["twin-eval", "--intent", "--oracle-hide", "timers", "--quiet", *TINY]) == 2
+    assert "--oracle-hide goes with --oracle N" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["twin-eval", "--intent", "--oracle", "2", "--oracle-hide", "timers,minds", "--quiet", *TINY])
+    assert "--oracle-hide takes a comma-separated list of positions, speeds, timers, attempts" in capsys.readouterr().err
+
+
+def test_twin_eval_names_what_the_oracle_was_denied(capsys):
+    import json
+
+    from dt_highway.cli import main
+
+    args = ["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--oracle-hide", "timers, attempts", "--quiet", *TINY]
+    assert main([*args, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["oracle"] == {"rollouts": 2, "period_s": 0.2, "hide": ["attempts", "timers"]}
+    assert main(args) == 0
+    assert "oracle (the simulator's whole state but attempts, timers, 2 simulated futures" in capsys.readouterr().out

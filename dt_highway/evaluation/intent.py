@@ -648,7 +648,7 @@ def evaluate_intent(
         "episodes": episodes,
         "seed": seed,
         "settings": _settings(cfg),
-        "oracle": None if oracle is None else {"rollouts": oracle.rollouts, "period_s": oracle.period_s},
+        "oracle": None if oracle is None else _oracle_settings(oracle),
     }
 
 
@@ -734,10 +734,22 @@ def format_intent(result: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _oracle_settings(oracle: OracleSettings) -> dict[str, Any]:
+    """The oracle's settings in the result (``hide`` only when it hides something)."""
+    out: dict[str, Any] = {"rollouts": oracle.rollouts, "period_s": oracle.period_s}
+    if oracle.hide:
+        out["hide"] = sorted(oracle.hide)
+    return out
+
+
 def _model_note(result: dict[str, Any], name: str) -> str:
     if name == result["configured_model"]:
         return " (configured)"
     if name == ORACLE and result.get("oracle"):
+        hidden = result["oracle"].get("hide")
+        if hidden:
+            return (f" (the simulator's whole state but {', '.join(hidden)}, {result['oracle']['rollouts']} simulated "
+                    "futures per estimate: how far ahead a lane change can be foreseen without them; not a model)")
         return (f" (the simulator's whole state, drivers' minds included, {result['oracle']['rollouts']} simulated "
                 "futures per estimate: about how far ahead a lane change can be foreseen at all; not a model)")
     return ""

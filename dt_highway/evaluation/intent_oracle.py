@@ -17,6 +17,20 @@ time since, and sides counted from the estimate's own lanes), and the oracle see
 moment the cloud's estimate is recorded (the cloud's own inputs are older by the uplink latency,
 0.1 s by default). With a driver at the wheel (``--driver``) the driver's next decisions are not
 simulated: the copies' ego follows its controller's last targets (measured only with the autopilot).
+
+**What the twin lacks** (``OracleSettings.hide``): the oracle can be denied parts of the state, one at a time or
+together, to measure which of them the foresight comes from. Each is replaced, in every copy, by what a twin that
+has only the cloud's data could assume:
+
+* ``positions``: every other vehicle's position along the road and its speed carry the error of one GNSS fix
+  (Gaussian, ``sigma_position_m`` and ``sigma_speed_mps``, the uplink's defaults; drawn per copy and vehicle; the
+  lateral position is kept, so that the lanes stay as they are);
+* ``speeds``: each driver's desired speed (IDM's ``v0``, the one per-driver parameter of the two-class world;
+  its driver type's gains are the type's presets) is taken to be its present speed (as the copy has it);
+* ``timers``: each driver's MOBIL decision timer is drawn uniformly in ``[0, its decision period)``;
+* ``attempts``: whether a cut-in attempt is open, and the speed its driver chases the ego with, are unknown:
+  every attempt not yet in motion (no brake plan) is closed, the driver goes back to its desired speed, and
+  its next attempt is a fresh draw from the Poisson process.
 """
 
 from __future__ import annotations
@@ -28,10 +42,12 @@ from dataclasses import dataclass
 import numpy as np
 from highway_env.road.road import Road
 
-from dt_highway.world.traffic import CutInPolicy, vehicle_id
+from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, vehicle_id
 
 ORACLE_PERIOD_S = 0.2
 """The oracle runs at most this often; an estimate in between reuses the last run [s]"""
+HIDEABLE = ("positions", "speeds", "timers", "attempts")
+"""What the oracle can be denied (see the module docstring)"""
 
 
 @dataclass(frozen=True)
@@ -41,28 +57,38 @@ class OracleSettings:
     :param rollouts: simulated futures per estimate (>= 1)
     :param period_s: the oracle runs at most this often [s]
     :param seed: seed of the copies' random generators
+    :param hide: the parts of the state the oracle is denied (names of :data:`HIDEABLE`)
+    :param sigma_position_m: with ``positions`` hidden, the error of a vehicle's position along the road [m]
+    :param sigma_speed_mps: with ``positions`` hidden, the error of its speed [m/s]
     """
 
     rollouts: int = 8
     period_s: float = ORACLE_PERIOD_S
     seed: int = 0
+    hide: frozenset[str] = frozenset()
+    sigma_position_m: float = 1.0
+    sigma_speed_mps: float = 0.2
 
     def __post_init__(self) -> None:
         if self.rollouts < 1:
             raise ValueError(f"the oracle needs at least 1 rollout (got {self.rollouts})")
+        unknown = sorted(set(self.hide) - set(HIDEABLE))
+        if unknown:
+            raise ValueError(f"the oracle cannot hide {', '.join(unknown)} (it can hide: {', '.join(HIDEABLE)})")
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
     return [p for v in road.vehicles if isinstance(p := getattr(v, "cut_in", None), CutInPolicy)]
 
 
-def copy_road(road: Road, rng: np.random.Generator) -> Road:
+def copy_road(road: Road, rng: np.random.Generator, settings: OracleSettings | None = None) -> Road:
     """A copy of ``road`` whose future draws are fresh: every cut-in policy draws from ``rng``, a driver
     whose next attempt has not opened yet waits a new exponential time (and draws its style anew), and
     the copy reports no traffic events.
 
     :param road: the simulator's road (left untouched)
     :param rng: the copy's random generator
+    :param settings: what the copy hides (``settings.hide``; ``None``: nothing)
     :return: the copy
     """
     memo: dict[int, object] = {}
@@ -76,7 +102,31 @@ def copy_road(road: Road, rng: np.random.Generator) -> Road:
         policy = getattr(v, "cut_in", None)
         if isinstance(policy, CutInPolicy) and v.clock_s < policy.next_attempt_s:
             policy.schedule(v.clock_s)  # memoryless: the wait from now is a fresh draw
+    if settings is not None and settings.hide:
+        for v in out.vehicles:
+            if isinstance(v, TypedDriverVehicle) and vehicle_id(v) != EGO_ID:
+                _hide(v, settings, rng)
     return out
+
+
+def _hide(v: TypedDriverVehicle, settings: OracleSettings, rng: np.random.Generator) -> None:
+    """Replace what ``settings.hide`` names of one copied driver by what the twin could assume (module docstring)."""
+    policy = v.cut_in
+    if "positions" in settings.hide:
+        v.position[0] += settings.sigma_position_m * float(rng.standard_normal())
+        v.speed = float(v.speed) + settings.sigma_speed_mps * float(rng.standard_normal())
+    if "attempts" in settings.hide and policy is not None and policy.brake is None:
+        if policy.desired_speed_mps is not None:  # chasing the ego: back to its own speed
+            v.target_speed = policy.desired_speed_mps
+            policy.desired_speed_mps = None
+        policy.schedule(v.clock_s)
+    if "speeds" in settings.hide:
+        if policy is not None and policy.desired_speed_mps is not None:
+            policy.desired_speed_mps = float(v.speed)
+        else:
+            v.target_speed = float(v.speed)
+    if "timers" in settings.hide:
+        v.timer = float(rng.uniform(0.0, v.LANE_CHANGE_DELAY))
 
 
 Futures = dict[int, list[tuple[float, int]]]
@@ -84,7 +134,7 @@ Futures = dict[int, list[tuple[float, int]]]
 
 
 def rollout_changes(road: Road, vehicle_ids: np.ndarray, horizon_s: float, dt_s: float, rollouts: int,
-                    rng: np.random.Generator) -> Futures:
+                    rng: np.random.Generator, settings: OracleSettings | None = None) -> Futures:
     """Simulate ``rollouts`` copies of ``road`` (:func:`copy_road`) for ``horizon_s`` and note each vehicle's first
     lane change (its centre's lane, as the evaluation's labels).
 
@@ -94,13 +144,14 @@ def rollout_changes(road: Road, vehicle_ids: np.ndarray, horizon_s: float, dt_s:
     :param dt_s: the simulation step [s]
     :param rollouts: simulated futures
     :param rng: draws the copies' generators
+    :param settings: what the copies hide (``None``: nothing)
     :return: per vehicle, the ``(time from now [s], new lane)`` of every copy in which it changed lane
     """
     wanted = set(vehicle_ids.tolist())
     out: Futures = {vid: [] for vid in wanted}
     steps = int(math.ceil(horizon_s / dt_s - 1e-9))
     for _ in range(rollouts):
-        sim = copy_road(road, np.random.default_rng(int(rng.integers(2**63))))
+        sim = copy_road(road, np.random.default_rng(int(rng.integers(2**63))), settings)
         tracked = {vehicle_id(v): (v, int(v.lane_index[2])) for v in sim.vehicles if vehicle_id(v) in wanted}
         for step in range(1, steps + 1):
             sim.act()
@@ -164,7 +215,8 @@ class Oracle:
             self._futures, self._last_t = {}, t_s
         todo = np.array([v for v in vehicle_ids.tolist() if v not in self._futures], dtype=np.int64)
         if len(todo):  # a vehicle new since the last run: its futures from now, as if simulated then
-            futures = rollout_changes(road, todo, max(self.horizons_s), dt_s, self.settings.rollouts, self.rng)
+            futures = rollout_changes(road, todo, max(self.horizons_s), dt_s, self.settings.rollouts, self.rng,
+                                      self.settings)
             elapsed = t_s - self._last_t
             self._futures.update({v: [(t + elapsed, lane) for t, lane in f] for v, f in futures.items()})
         return intents_from_futures(self._futures, self.settings.rollouts, vehicle_ids, lanes, self.horizons_s,
