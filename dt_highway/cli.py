@@ -248,8 +248,10 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         lines = format_sweep(result)
     else:
         with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
-            oracle = None if args.oracle is None else OracleSettings(rollouts=args.oracle, seed=args.seed,
-                                                                     hide=args.oracle_hide)
+            uplink = cfg.twin.uplink  # a hidden position is off by one of this uplink's fixes
+            oracle = None if args.oracle is None else OracleSettings(
+                rollouts=args.oracle, seed=args.seed, hide=args.oracle_hide,
+                sigma_position_m=uplink.noise_sigma_m, sigma_speed_mps=uplink.speed_noise_sigma_mps)
             result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))

@@ -172,9 +172,10 @@ def test_twin_eval_scores_the_oracle_on_the_same_estimates_and_its_mistakes_are_
     assert "--oracle-hide takes a comma-separated list of positions, speeds, timers, attempts" in capsys.readouterr().err
 
 
-def test_twin_eval_names_what_the_oracle_was_denied(capsys):
+def test_twin_eval_names_what_the_oracle_was_denied(capsys, monkeypatch):
     import json
 
+    from dt_highway import cli
     from dt_highway.cli import main
 
     args = ["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--oracle-hide", "timers, attempts", "--quiet", *TINY]
@@ -182,3 +183,10 @@ def test_twin_eval_names_what_the_oracle_was_denied(capsys):
     assert json.loads(capsys.readouterr().out)["oracle"] == {"rollouts": 2, "period_s": 0.2, "hide": ["attempts", "timers"]}
     assert main(args) == 0
     assert "oracle (the simulator's whole state but attempts, timers, 2 simulated futures" in capsys.readouterr().out
+    # a hidden position is off by one fix of the uplink evaluated
+    seen = []
+    monkeypatch.setattr(cli, "evaluate_intent", lambda *a, oracle, **k: seen.append(oracle) or {})
+    monkeypatch.setattr(cli, "format_intent", lambda result: [])
+    noisy = ["--set", "twin.uplink.noise_sigma_m=3", "--set", "twin.uplink.speed_noise_sigma_mps=0.5"]
+    assert main([*args, "--oracle-hide", "positions", *noisy]) == 0
+    assert (seen[0].hide, seen[0].sigma_position_m, seen[0].sigma_speed_mps) == (frozenset({"positions"}), 3.0, 0.5)

@@ -23,8 +23,8 @@ together, to measure which of them the foresight comes from. Each is replaced, i
 has only the cloud's data could assume:
 
 * ``positions``: every other vehicle's position along the road and its speed carry the error of one GNSS fix
-  (Gaussian, ``sigma_position_m`` and ``sigma_speed_mps``, the uplink's defaults; drawn per copy and vehicle; the
-  lateral position is kept, so that the lanes stay as they are);
+  (Gaussian, ``sigma_position_m`` and ``sigma_speed_mps``: ``twin-eval`` passes its uplink's, by default 1 m and
+  0.2 m/s; drawn per copy and vehicle; the lateral position is kept, so that the lanes stay as they are);
 * ``speeds``: each driver's desired speed (IDM's ``v0``, the one per-driver parameter of the two-class world;
   its driver type's gains are the type's presets) is taken to be its present speed (as the copy has it);
 * ``timers``: each driver's MOBIL decision timer is drawn uniformly in ``[0, its decision period)``;
