@@ -74,13 +74,23 @@ def test_the_oracle_does_not_know_when_the_next_attempt_comes(next_attempt_s):
     assert cutter.cut_in.next_attempt_s == next_attempt_s
 
 
-def test_an_oracle_denied_the_attempts_does_not_know_that_one_is_open():
+@pytest.mark.parametrize(("hide", "chasing"), [("attempts", False), ("attempts", True), ("unseen_attempts", False)])
+def test_an_oracle_denied_the_attempts_does_not_know_that_one_is_open(hide, chasing):
     # the same open attempt that every future above carries out: hidden, it is a fresh Poisson wait like any other
     road, _, _, cutter = _scene(next_attempt_s=0.0)
+    if chasing:
+        cutter.cut_in.desired_speed_mps = 30.0  # its own speed, kept while it matches the ego's
     expected = 1.0 - math.exp(-cutter.cut_in.rate_per_min * 3.0 / 60.0)
-    p = _p_into_ego_lane(road, cutter, rollouts=300, settings=OracleSettings(hide=frozenset({"attempts"})))
+    p = _p_into_ego_lane(road, cutter, rollouts=300, settings=OracleSettings(hide=frozenset({hide})))
     assert p[-1] == pytest.approx(expected, abs=0.09)
     assert cutter.cut_in.next_attempt_s == 0.0  # the simulator's driver still has it open
+
+
+def test_an_attempt_seen_in_the_chase_stays_known_with_only_the_unseen_ones_hidden():
+    road, _, _, cutter = _scene(next_attempt_s=0.0)
+    cutter.cut_in.desired_speed_mps = 30.0
+    p = _p_into_ego_lane(road, cutter, rollouts=8, settings=OracleSettings(hide=frozenset({"unseen_attempts"})))
+    assert np.all(p == 1.0)
 
 
 def test_what_the_oracle_hides_is_replaced_in_the_copies_only():
@@ -100,7 +110,8 @@ def test_what_the_oracle_hides_is_replaced_in_the_copies_only():
     ego_copy = next(v for v in copy_road(road, np.random.default_rng(0), settings).vehicles if v.dt_id == 0)
     assert np.array_equal(ego_copy.position, ego.position) and ego_copy.speed == ego.speed  # the ego is known
     assert (float(cutter.position[0]), cutter.speed, cutter.target_speed, cutter.timer) == (x0, v0, 31.0, 0.0)
-    with pytest.raises(ValueError, match=r"cannot hide minds \(it can hide: positions, speeds, timers, attempts"):
+    hideable = r"positions, speeds, timers, attempts, unseen_attempts"
+    with pytest.raises(ValueError, match=rf"cannot hide minds \(it can hide: {hideable}\)"):
         OracleSettings(hide=frozenset({"minds"}))
 
 
@@ -169,7 +180,8 @@ def test_twin_eval_scores_the_oracle_on_the_same_estimates_and_its_mistakes_are_
     assert "--oracle-hide goes with --oracle N" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["twin-eval", "--intent", "--oracle", "2", "--oracle-hide", "timers,minds", "--quiet", *TINY])
-    assert "--oracle-hide takes a comma-separated list of positions, speeds, timers, attempts" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--oracle-hide takes a comma-separated list of positions, speeds, timers, attempts, unseen_attempts" in err
 
 
 def test_twin_eval_names_what_the_oracle_was_denied(capsys, monkeypatch):

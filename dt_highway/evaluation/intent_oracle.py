@@ -30,7 +30,9 @@ has only the cloud's data could assume:
 * ``timers``: each driver's MOBIL decision timer is drawn uniformly in ``[0, its decision period)``;
 * ``attempts``: whether a cut-in attempt is open, and the speed its driver chases the ego with, are unknown:
   every attempt not yet in motion (no brake plan) is closed, the driver goes back to its desired speed, and
-  its next attempt is a fresh draw from the Poisson process.
+  its next attempt is a fresh draw from the Poisson process;
+* ``unseen_attempts``: the same, except for a driver who is chasing the ego (its speed set to reach the window
+  just ahead of it): that attempt is known, as a twin that read the chase from the fixes without fail would know it.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, ve
 
 ORACLE_PERIOD_S = 0.2
 """The oracle runs at most this often; an estimate in between reuses the last run [s]"""
-HIDEABLE = ("positions", "speeds", "timers", "attempts")
+HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
 """What the oracle can be denied (see the module docstring)"""
 
 
@@ -115,7 +117,9 @@ def _hide(v: TypedDriverVehicle, settings: OracleSettings, rng: np.random.Genera
     if "positions" in settings.hide:
         v.position[0] += settings.sigma_position_m * float(rng.standard_normal())
         v.speed = float(v.speed) + settings.sigma_speed_mps * float(rng.standard_normal())
-    if "attempts" in settings.hide and policy is not None and policy.brake is None:
+    chasing = policy is not None and policy.desired_speed_mps is not None  # the cloud sees it match the ego's speed
+    unseen = "attempts" in settings.hide or ("unseen_attempts" in settings.hide and not chasing)
+    if unseen and policy is not None and policy.brake is None:
         if policy.desired_speed_mps is not None:  # chasing the ego: back to its own speed
             v.target_speed = policy.desired_speed_mps
             policy.desired_speed_mps = None
