@@ -46,7 +46,7 @@ from dt_highway.evaluation.intent import (
     run_intent_sweep,
     sweep_steps,
 )
-from dt_highway.evaluation.intent_oracle import HIDEABLE, OracleSettings
+from dt_highway.evaluation.intent_oracle import HIDEABLE, STARTS, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
@@ -182,7 +182,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
         return _twin_eval_intent(args)
     given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None),
                                    ("--oracle", args.oracle is not None),
-                                   ("--oracle-hide", bool(args.oracle_hide))) if on]
+                                   ("--oracle-hide", bool(args.oracle_hide)),
+                                   ("--oracle-from", args.oracle_from != "state")) if on]
     if given:
         raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
@@ -242,6 +243,10 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         raise ConfigError("--oracle scores one setting: leave out --sweep")
     if args.oracle_hide and args.oracle is None:
         raise ConfigError("--oracle-hide goes with --oracle N")
+    if args.oracle_from != "state" and args.oracle is None:
+        raise ConfigError("--oracle-from goes with --oracle N")
+    if args.oracle_from == "picture" and args.oracle_hide:
+        raise ConfigError("--oracle-hide goes with --oracle-from state (the twin's picture has none of the state to hide)")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
@@ -250,7 +255,7 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         with _progress(episodes * episode_steps(cfg), "twin-eval --intent", args.quiet or args.json) as bar:
             uplink = cfg.twin.uplink  # a hidden position is off by one of this uplink's fixes
             oracle = None if args.oracle is None else OracleSettings(
-                rollouts=args.oracle, seed=args.seed, hide=args.oracle_hide,
+                rollouts=args.oracle, seed=args.seed, hide=args.oracle_hide, start=args.oracle_from,
                 sigma_position_m=uplink.noise_sigma_m, sigma_speed_mps=uplink.speed_noise_sigma_mps)
             result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
@@ -989,6 +994,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --oracle: deny the oracle these parts of the state, comma-separated: "
                    f"{', '.join(HIDEABLE)} (each replaced by what the twin could assume): which of them the foresight "
                    "comes from")
+    p.add_argument("--oracle-from", choices=STARTS, default="state",
+                   help="with --oracle: what its futures start from: the simulator's state (default) or the twin's "
+                   "picture (the cloud's fixes and tags, simulated with the simulator's driver models: a twin with a "
+                   "perfect traffic model; also scores its mean with the configured model)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -202,3 +202,88 @@ def test_twin_eval_names_what_the_oracle_was_denied(capsys, monkeypatch):
     noisy = ["--set", "twin.uplink.noise_sigma_m=3", "--set", "twin.uplink.speed_noise_sigma_mps=0.5"]
     assert main([*args, "--oracle-hide", "positions", *noisy]) == 0
     assert (seen[0].hide, seen[0].sigma_position_m, seen[0].sigma_speed_mps) == (frozenset({"positions"}), 3.0, 0.5)
+
+
+# ----------------------------------------------------------------------------- from the twin's picture
+def _picture(cars):
+    """A twin picture of the ego (id 0, lane 1 at x = 200 m, 25 m/s) and ``cars``: ``(id, x, y, speed, lateral speed,
+    p_aggressive)``."""
+    from dt_highway.twin.intention import TwinPicture
+
+    rows = [(0, 200.0, 4.0, 25.0, 0.0, 0.1), *cars]
+    ids, x, y, v, vlat, pa = (np.array(c) for c in zip(*rows, strict=True))
+    return TwinPicture(ids.astype(np.int64), 10.0, x, y, v, vlat, pa)
+
+
+def _picture_oracle(rollouts=4):
+    from dt_highway.twin.tagger import HighwayMap
+
+    return Oracle(OracleSettings(rollouts=rollouts, start="picture"), HORIZONS, TrafficConfig(), HighwayMap(4.0, 3))
+
+
+def test_a_picture_copy_puts_each_car_where_the_twin_sees_it_with_a_drawn_type():
+    from dt_highway.evaluation.intent_oracle import picture_road
+    from dt_highway.twin.tagger import HighwayMap
+
+    network = RoadNetwork.straight_road_network(3, speed_limit=30)
+    # car 7 moves toward lane 2 (1.2 m off lane 1's centre at 1 m/s); car 8 keeps lane 0; car 9 is surely aggressive
+    picture = _picture([(7, 230.0, 5.2, 26.0, 1.0, 0.0), (8, 180.0, 0.1, 24.0, 0.05, 0.0), (9, 150.0, 8.0, 28.0, 0.0, 1.0)])
+    road = picture_road(network, picture, HighwayMap(4.0, 3), TrafficConfig(), np.random.default_rng(0))
+    by_id = {v.dt_id: v for v in road.vehicles}
+    assert sorted(by_id) == [0, 7, 8, 9]
+    for i, vid in enumerate(picture.vehicle_ids.tolist()):
+        v = by_id[vid]
+        assert v.position[0] == pytest.approx(picture.x_m[i]) and v.position[1] == pytest.approx(picture.y_m[i])
+        assert v.speed == picture.speed_mps[i] and v.target_speed == picture.speed_mps[i]
+    assert by_id[7].target_lane_index[2] == 2 and by_id[8].target_lane_index[2] == 0
+    assert by_id[0].enable_lane_change is False and by_id[0].cut_in is None
+    assert by_id[9].cut_in is not None and by_id[7].cut_in is None  # types drawn from the tagger's posterior
+    assert by_id[9].LANE_CHANGE_DELAY == TrafficConfig().aggressive.lane_change_delay_s
+
+
+def test_an_oracle_from_the_picture_foresees_a_move_under_way_and_not_a_car_keeping_its_lane():
+    picture = _picture([(7, 230.0, 5.2, 25.0, 1.0, 0.0), (8, 120.0, 0.0, 25.0, 0.0, 0.0)])
+    road = Road(network=RoadNetwork.straight_road_network(3, speed_limit=30), np_random=np.random.default_rng(0))
+    oracle = _picture_oracle()
+    ids, lanes = np.array([7, 8]), np.array([1, 0])
+    p = oracle.estimate(road, 0.0, DT, ids, lanes, picture)
+    assert np.all(p[0, :, 2] == 1.0)  # car 7 into lane 2 within 1 s, in every future
+    assert np.all(p[1, :, 0] == 1.0)  # car 8 stays
+    # within the period the last run is reused; without the ego's fixes the copies are not simulated
+    assert np.array_equal(oracle.estimate(road, 0.1, DT, ids, lanes, picture), p)
+    no_ego = _picture([(7, 230.0, 5.2, 25.0, 1.0, 0.0)])
+    no_ego = type(no_ego)(*(a[1:] if isinstance(a, np.ndarray) else a for a in vars(no_ego).values()))
+    assert np.all(_picture_oracle().estimate(road, 0.0, DT, ids, lanes, no_ego)[:, :, 0] == 1.0)
+    with pytest.raises(ValueError, match="pass it"):
+        _picture_oracle().estimate(road, 0.0, DT, ids, lanes)
+
+
+def test_picture_settings_are_checked():
+    with pytest.raises(ValueError, match="cannot start from 'minds'"):
+        OracleSettings(start="minds")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="not from the twin's picture"):
+        OracleSettings(start="picture", hide=frozenset({"speeds"}))
+    with pytest.raises(ValueError, match="needs the traffic settings and the map"):
+        Oracle(OracleSettings(start="picture"), HORIZONS)
+
+
+def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_model(capsys):
+    import json
+
+    from dt_highway.cli import main
+
+    args = ["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--oracle-from", "picture", "--quiet", *TINY]
+    assert main([*args, "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["oracle"] == {"rollouts": 2, "period_s": 0.2, "start": "picture"}
+    assert list(result["models"]) == ["learned", "physics", "oracle", "learned+oracle"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "oracle (the twin's picture simulated with the simulator's driver models" in out
+    assert "learned+oracle (the mean of the two estimates)" in out
+    assert main(["twin-eval", "--intent", "--oracle-from", "picture", "--quiet", *TINY]) == 2
+    assert "--oracle-from goes with --oracle N" in capsys.readouterr().err
+    assert main([*args, "--oracle-hide", "timers"]) == 2
+    assert "--oracle-hide goes with --oracle-from state" in capsys.readouterr().err
+    assert main(["twin-eval", "--oracle-from", "picture", "--quiet", *TINY]) == 2
+    assert "--oracle-from goes with --intent" in capsys.readouterr().err

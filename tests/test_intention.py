@@ -125,6 +125,23 @@ def test_a_lane_without_neighbours_has_no_target():
     assert all(i.target_lane == NO_LANE and i.p_change == 0.0 and i.p_target == 0.0 for i in table.intents(1))
 
 
+def test_the_twin_picture_is_each_car_now_from_its_fixes_and_tags():
+    from dt_highway.twin.intention import twin_picture
+
+    store, records = _scene()
+    pic = twin_picture(store, records, now_s=10.0, prior_aggressive=0.2)
+    assert pic.vehicle_ids.tolist() == [0, 1, 2] and pic.t_s == 10.0 and len(pic) == 3
+    # noise-free fixes at 25 m/s: the position now is where the car is at 10 s, whatever the fixes' ages
+    assert pic.x_m == pytest.approx([250.0, 260.0, 280.0])
+    assert pic.speed_mps[[0, 2]] == pytest.approx([25.0, 25.0])
+    assert pic.y_m[0] == pytest.approx(4.0) and pic.y_m[2] == pytest.approx(0.0)
+    # car 1 drifts toward lane 1 at 2 m/s from 9.2 s: 7.2 m at 9.6 s, 6.4 m at 10 s, the mean of the last 0.5 s 6.8 m
+    assert pic.y_m[1] == pytest.approx(6.8) and pic.lateral_speed_mps[1] == pytest.approx(-2.0)
+    assert pic.lateral_speed_mps[[0, 2]] == pytest.approx([0.0, 0.0])
+    assert pic.p_aggressive == pytest.approx([0.2, 0.2, 0.02])  # no record: the prior; car 2 tagged normal at 0.98
+    assert len(twin_picture(FixStore(30.0), {}, now_s=10.0)) == 0
+
+
 # ----------------------------------------------------------------------------- the wall
 TRUTH_MODULES = ("dt_highway.world", "dt_highway.env", "dt_highway.evaluation", "highway_env", "dt_highway.metrics")
 

@@ -54,7 +54,7 @@ from dt_highway.env import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.intent_oracle import Oracle, OracleSettings
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
-from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model
+from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model, twin_picture
 from dt_highway.world.traffic import EGO_ID, vehicle_id
 
 MERGE_S = 1.0
@@ -151,8 +151,11 @@ class _Recorder:
             self._table = table
             self.tables.append((table.t_s - env.twin_offset_s, table.inputs))
             if self.oracle is not None:
+                twin = env.twin
+                picture = None if self.oracle.settings.start != "picture" else twin_picture(
+                    twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
                 self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
-                                                              table.inputs.vehicle_ids, table.inputs.lane))
+                                                              table.inputs.vehicle_ids, table.inputs.lane, picture))
         view = env.twin_view
         if view is not None and view is not self._view:
             self._view = view
@@ -250,7 +253,8 @@ def record_episodes(
     horizons = tuple(cfg.twin.intention.horizons_s)
     try:
         for i, seed in enumerate(seeds):
-            seer = None if oracle is None else Oracle(replace(oracle, seed=oracle.seed + i), horizons)
+            seer = None if oracle is None else Oracle(replace(oracle, seed=oracle.seed + i), horizons, cfg.traffic,
+                                                      env.road_map)
             env.recorder = _Recorder(-math.inf if with_preroll else 0.0, seer)
             env.reset(seed=seed)
             act: Callable[[], np.ndarray] = env.action_space.sample  # the autopilot ignores the action
@@ -636,8 +640,13 @@ def evaluate_intent(
             raise ConfigError(f"twin.intention: {exc}") from None
         scores[name] = score_model(recorded, model, intention)
     if oracle is not None:
-        scores[ORACLE] = score_probs(recorded, [ep.oracle or [] for ep in recorded], tuple(intention.horizons_s),
-                                     intention)
+        oracle_probs = [ep.oracle or [] for ep in recorded]
+        scores[ORACLE] = score_probs(recorded, oracle_probs, tuple(intention.horizons_s), intention)
+        if oracle.start == "picture":  # what a twin could ship: its network and its simulated picture, averaged
+            model = make_model(intention)
+            mean = [[(a + b) / 2.0 for a, b in zip(predictions(model, ep.tables), o, strict=True)]
+                    for ep, o in zip(recorded, oracle_probs, strict=True)]
+            scores[f"{intention.model}+{ORACLE}"] = score_probs(recorded, mean, tuple(intention.horizons_s), intention)
     cfg = eval_config(config, driven=driver is not None)
     return {
         "configured_model": intention.model,
@@ -739,12 +748,19 @@ def _oracle_settings(oracle: OracleSettings) -> dict[str, Any]:
     out: dict[str, Any] = {"rollouts": oracle.rollouts, "period_s": oracle.period_s}
     if oracle.hide:
         out["hide"] = sorted(oracle.hide)
+    if oracle.start != "state":
+        out["start"] = oracle.start
     return out
 
 
 def _model_note(result: dict[str, Any], name: str) -> str:
     if name == result["configured_model"]:
         return " (configured)"
+    if name == ORACLE and result.get("oracle", {}).get("start") == "picture":
+        return (f" (the twin's picture simulated with the simulator's driver models, {result['oracle']['rollouts']} "
+                "futures per estimate: a twin with a perfect traffic model and the cloud's data)")
+    if name.endswith(f"+{ORACLE}"):
+        return " (the mean of the two estimates)"
     if name == ORACLE and result.get("oracle"):
         hidden = result["oracle"].get("hide")
         if hidden:

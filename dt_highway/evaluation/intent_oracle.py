@@ -33,23 +33,49 @@ has only the cloud's data could assume:
   its next attempt is a fresh draw from the Poisson process;
 * ``unseen_attempts``: the same, except for a driver who is chasing the ego (its speed set to reach the window
   just ahead of it): that attempt is known, as a twin that read the chase from the fixes without fail would know it.
+
+**The twin's own picture** (``OracleSettings.start = "picture"``): instead of the simulator's state, each copy starts
+from what the cloud knows (:class:`~dt_highway.twin.intention.TwinPicture`: every vehicle's position, speed and lateral
+motion from its fixes, the tagger's posterior that its driver is aggressive) and simulates it with the simulator's own
+driver models: a twin with a perfect traffic model and the cloud's data. Per copy, each driver's type is drawn from the
+tagger's posterior and gets its type's presets (``traffic.normal`` / ``traffic.aggressive``) with its present speed as
+its desired speed, a MOBIL timer drawn in its decision period, and, if aggressive, a cut-in policy whose next attempt is a
+fresh draw; a vehicle is put at its lateral position, headed along its lateral speed, and moving toward the
+neighbouring lane when it is more than :data:`MOVING_OFFSET_M` off its lane's centre and moving outward faster than
+:data:`MOVING_LATERAL_MPS`. The ego is an IDM car keeping its lane at its present speed. The road's geometry is the
+simulator's (the twin knows the map). The copies share the picture and differ in what the cloud does not know.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from highway_env.road.road import Road
+from highway_env.road.road import Road, RoadNetwork
 
+from dt_highway.world.continuum import DriverProfile
+from dt_highway.world.road import FastRoad
 from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, vehicle_id
+
+if TYPE_CHECKING:
+    from dt_highway.config import TrafficConfig
+    from dt_highway.twin.intention import TwinPicture
+    from dt_highway.twin.tagger import HighwayMap
 
 ORACLE_PERIOD_S = 0.2
 """The oracle runs at most this often; an estimate in between reuses the last run [s]"""
 HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
 """What the oracle can be denied (see the module docstring)"""
+STARTS = ("state", "picture")
+"""What the copies start from: the simulator's state, or the twin's picture (see the module docstring)"""
+MOVING_OFFSET_M = 0.5
+"""A pictured vehicle this far off its lane's centre ... [m]"""
+MOVING_LATERAL_MPS = 0.3
+"""... and moving outward faster than this is changing lane [m/s]"""
 
 
 @dataclass(frozen=True)
@@ -62,6 +88,7 @@ class OracleSettings:
     :param hide: the parts of the state the oracle is denied (names of :data:`HIDEABLE`)
     :param sigma_position_m: with ``positions`` hidden, the error of a vehicle's position along the road [m]
     :param sigma_speed_mps: with ``positions`` hidden, the error of its speed [m/s]
+    :param start: what the copies start from: ``"state"`` (the simulator's) or ``"picture"`` (the twin's)
     """
 
     rollouts: int = 8
@@ -70,6 +97,7 @@ class OracleSettings:
     hide: frozenset[str] = frozenset()
     sigma_position_m: float = 1.0
     sigma_speed_mps: float = 0.2
+    start: Literal["state", "picture"] = "state"
 
     def __post_init__(self) -> None:
         if self.rollouts < 1:
@@ -77,6 +105,11 @@ class OracleSettings:
         unknown = sorted(set(self.hide) - set(HIDEABLE))
         if unknown:
             raise ValueError(f"the oracle cannot hide {', '.join(unknown)} (it can hide: {', '.join(HIDEABLE)})")
+        if self.start not in STARTS:
+            raise ValueError(f"the oracle cannot start from {self.start!r} (it can start from: {', '.join(STARTS)})")
+        if self.start == "picture" and self.hide:
+            raise ValueError("hiding parts of the state goes with the oracle starting from the simulator's state, "
+                             "not from the twin's picture (which has none of them)")
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
@@ -151,11 +184,18 @@ def rollout_changes(road: Road, vehicle_ids: np.ndarray, horizon_s: float, dt_s:
     :param settings: what the copies hide (``None``: nothing)
     :return: per vehicle, the ``(time from now [s], new lane)`` of every copy in which it changed lane
     """
+    return first_changes(lambda g: copy_road(road, g, settings), vehicle_ids, horizon_s, dt_s, rollouts, rng)
+
+
+def first_changes(make_copy: Callable[[np.random.Generator], Road], vehicle_ids: np.ndarray, horizon_s: float,
+                  dt_s: float, rollouts: int, rng: np.random.Generator) -> Futures:
+    """Simulate ``rollouts`` copies made by ``make_copy`` (each given its own generator, drawn from ``rng``) for
+    ``horizon_s`` and note each vehicle's first lane change (see :func:`rollout_changes`)."""
     wanted = set(vehicle_ids.tolist())
     out: Futures = {vid: [] for vid in wanted}
     steps = int(math.ceil(horizon_s / dt_s - 1e-9))
     for _ in range(rollouts):
-        sim = copy_road(road, np.random.default_rng(int(rng.integers(2**63))), settings)
+        sim = make_copy(np.random.default_rng(int(rng.integers(2**63))))
         tracked = {vehicle_id(v): (v, int(v.lane_index[2])) for v in sim.vehicles if vehicle_id(v) in wanted}
         for step in range(1, steps + 1):
             sim.act()
@@ -198,23 +238,97 @@ def intents_from_futures(futures: Futures, rollouts: int, vehicle_ids: np.ndarra
     return np.clip(probs, 0.0, 1.0)
 
 
+def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMap, traffic: TrafficConfig,
+                 rng: np.random.Generator, ego_id: int = EGO_ID) -> Road:
+    """A road that starts from the twin's picture, driven by the simulator's driver models (module docstring).
+
+    :param network: the road's geometry (the simulator's; the twin knows the map)
+    :param picture: what the cloud knows now
+    :param road_map: the twin's map (lane centres, for the lane of each pictured vehicle)
+    :param traffic: the driver types' presets and the cut-in settings
+    :param rng: the copy's random generator (types, timers, attempts)
+    :param ego_id: the ego's id (an IDM car keeping its lane)
+    :return: the copy
+    """
+    road = FastRoad(network=network, vehicles=[], np_random=np.random.RandomState(int(rng.integers(2**31))),
+                    record_history=False)
+    lanes = np.clip(road_map.lane_of(picture.y_m), 0, road_map.n_lanes - 1).astype(int)
+    for i, vid in enumerate(picture.vehicle_ids.tolist()):
+        x, y, speed, vlat = (float(a[i]) for a in (picture.x_m, picture.y_m, picture.speed_mps,
+                                                    picture.lateral_speed_mps))
+        lane = int(lanes[i])
+        lane_index = ("0", "1", lane)
+        offset = y - (road_map.first_lane_y_m + lane * road_map.lane_width_m)
+        side = int(np.sign(vlat)) if abs(vlat) > MOVING_LATERAL_MPS and offset * vlat > 0 \
+            and abs(offset) > MOVING_OFFSET_M and 0 <= lane + int(np.sign(vlat)) < road_map.n_lanes else 0
+        aggressive = vid != ego_id and bool(rng.random() < picture.p_aggressive[i])
+        params = traffic.aggressive if aggressive else traffic.normal
+        profile = DriverProfile.from_preset(params, speed, traffic.cut_in_rate_per_min if aggressive else 0.0)
+        lane_obj = road.network.get_lane(lane_index)
+        heading = lane_obj.heading_at(x) + math.asin(float(np.clip(vlat / max(speed, 1.0), -0.5, 0.5)))
+        v = TypedDriverVehicle(road, lane_obj.position(x, offset), heading, speed,
+                               target_lane_index=("0", "1", lane + side), target_speed=speed)
+        v.apply_params(profile)
+        v.DELTA = 4.0
+        v.timer = float(rng.uniform(0.0, profile.lane_change_delay_s))
+        v.dt_id = vid
+        if vid == ego_id:
+            v.enable_lane_change = False
+        elif aggressive:
+            v.cut_in = _cut_in_policy(traffic, profile, rng)
+        road.vehicles.append(v)
+    return road
+
+
+def _cut_in_policy(traffic: TrafficConfig, profile: DriverProfile, rng: np.random.Generator) -> CutInPolicy:
+    """An aggressive driver's cut-in policy as the simulator makes it, its next attempt a fresh draw."""
+    policy = CutInPolicy(
+        rate_per_min=profile.cut_in_rate_per_min, gap_m=traffic.cut_in_gap_m, search_range_m=traffic.cut_in_range_m,
+        ego_preference=traffic.cut_in_ego_preference, chase_patience_s=traffic.cut_in_chase_s, rng=rng,
+        dangerous_share=traffic.dangerous.share, dangerous_gap_m=traffic.dangerous.gap_m,
+        brake_mps2=traffic.dangerous.brake_mps2, speed_drop_mps=traffic.dangerous.speed_drop_mps,
+        brake_in_lane_only=traffic.dangerous.brake_onset == "in_lane",
+    )
+    policy.schedule(0.0)
+    return policy
+
+
 class Oracle:
     """Simulates futures for the recorder (:func:`rollout_changes`) at most every ``settings.period_s``, and turns
     them into each estimate's probabilities (:func:`intents_from_futures`).
 
-    :param settings: rollouts, period and seed
+    :param settings: rollouts, period, seed, what is hidden and what the copies start from
     :param horizons_s: the intention model's horizons [s]
+    :param traffic: the driver types and cut-in settings (needed to start from the twin's picture)
+    :param road_map: the twin's map (needed to start from the twin's picture)
+    :raises ValueError: when the copies start from the picture without ``traffic`` and ``road_map``
     """
 
-    def __init__(self, settings: OracleSettings, horizons_s: tuple[float, ...]) -> None:
+    def __init__(self, settings: OracleSettings, horizons_s: tuple[float, ...], traffic: TrafficConfig | None = None,
+                 road_map: HighwayMap | None = None) -> None:
+        if settings.start == "picture" and (traffic is None or road_map is None):
+            raise ValueError("an oracle that starts from the twin's picture needs the traffic settings and the map")
         self.settings = settings
         self.horizons_s = horizons_s
+        self.traffic = traffic
+        self.road_map = road_map
         self.rng = np.random.default_rng(settings.seed)
         self._last_t = -math.inf
         self._futures: Futures = {}
 
-    def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray) -> np.ndarray:
-        """:return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]"""
+    def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray,
+                 picture: TwinPicture | None = None) -> np.ndarray:
+        """:return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]
+        (starting from the twin's ``picture`` of now, when the settings say so: a vehicle that is not in the last
+        run's picture stays)"""
+        if self.settings.start == "picture":
+            if picture is None:
+                raise ValueError("this oracle starts from the twin's picture: pass it")
+            if t_s - self._last_t >= self.settings.period_s - 1e-9:
+                self._last_t = t_s
+                self._futures = self._from_picture(road.network, picture, dt_s)
+            return intents_from_futures(self._futures, self.settings.rollouts, vehicle_ids, lanes, self.horizons_s,
+                                        t_s - self._last_t)
         if t_s - self._last_t >= self.settings.period_s - 1e-9:
             self._futures, self._last_t = {}, t_s
         todo = np.array([v for v in vehicle_ids.tolist() if v not in self._futures], dtype=np.int64)
@@ -225,3 +339,11 @@ class Oracle:
             self._futures.update({v: [(t + elapsed, lane) for t, lane in f] for v, f in futures.items()})
         return intents_from_futures(self._futures, self.settings.rollouts, vehicle_ids, lanes, self.horizons_s,
                                     t_s - self._last_t)
+
+    def _from_picture(self, network: RoadNetwork, picture: TwinPicture, dt_s: float) -> Futures:
+        assert self.traffic is not None and self.road_map is not None  # checked in __init__
+        traffic, road_map = self.traffic, self.road_map
+        if not (picture.vehicle_ids == EGO_ID).any():
+            return {}  # without the ego's fixes the copies have no ego to chase or to keep away from
+        return first_changes(lambda g: picture_road(network, picture, road_map, traffic, g), picture.vehicle_ids,
+                             max(self.horizons_s), dt_s, self.settings.rollouts, self.rng)

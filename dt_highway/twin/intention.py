@@ -60,6 +60,7 @@ not dependencies; torch (one already) is used for training only.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
@@ -328,6 +329,75 @@ def _mobil(x: np.ndarray, v: np.ndarray, lead: np.ndarray, s_lead: np.ndarray, s
     return np.column_stack([(there - own) / 3.0, follower / 3.0])
 
 
+def _windows(t: np.ndarray) -> Callable[[float], np.ndarray]:
+    """:return: ``window(w)``: the mask of each row's fixes younger than ``w`` [s] than its newest (which is always in)"""
+    valid = ~np.isnan(t)
+    age = t[:, -1:] - t
+
+    def window(w: float) -> np.ndarray:
+        m = valid & (age < w - 1e-9)
+        m[:, -1] = True
+        return m
+
+    return window
+
+
+def _present(rows: np.ndarray, w05: np.ndarray, now_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each vehicle's position along the road and speed now: its fixes of the last 0.5 s moved to ``now_s`` at their
+    speed and course, averaged [m], and their mean speed [m/s]."""
+    t, x, v, heading = rows[:, :, 0], rows[:, :, 1], rows[:, :, 3], rows[:, :, 4]
+    return _window_mean(x + v * np.cos(heading) * (now_s - t), w05), _window_mean(v, w05)
+
+
+@dataclass(frozen=True)
+class TwinPicture:
+    """The cloud's picture of the road now, from the fixes and the tagger's records only: every vehicle with enough
+    recent fixes (the ego included), as the intention inputs see it.
+
+    :param vehicle_ids: the vehicles, ``(N,)``
+    :param t_s: twin time [s]
+    :param x_m: position along the road: the last 0.5 s of fixes moved to ``t_s`` at their speed, averaged, ``(N,)`` [m]
+    :param y_m: lateral position, mean of the last 0.5 s of fixes, ``(N,)`` [m]
+    :param speed_mps: speed, mean of the last 0.5 s, ``(N,)`` [m/s]
+    :param lateral_speed_mps: ``speed sin(course)``, mean of the last 0.6 s (positive: toward higher lane ids),
+        ``(N,)`` [m/s]
+    :param p_aggressive: the tagger's posterior that the driver is aggressive, ``(N,)`` [-]
+    """
+
+    vehicle_ids: np.ndarray
+    t_s: float
+    x_m: np.ndarray
+    y_m: np.ndarray
+    speed_mps: np.ndarray
+    lateral_speed_mps: np.ndarray
+    p_aggressive: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.vehicle_ids)
+
+
+def twin_picture(store: FixStore, records: dict[int, DriverRecord], now_s: float,
+                 prior_aggressive: float = 0.2) -> TwinPicture:
+    """The cloud's picture of every vehicle with enough recent fixes (:class:`TwinPicture`).
+
+    :param store: the cloud's fix histories
+    :param records: the tagger's driver records (read only)
+    :param now_s: twin time [s]
+    :param prior_aggressive: posterior used for a driver without a record [-]
+    """
+    ids, rows, _ = _gather(store, now_s)
+    if len(ids) == 0:
+        z = np.zeros(0)
+        return TwinPicture(ids, now_s, z, z, z, z, z)
+    window = _windows(rows[:, :, 0])
+    w05 = window(0.5)
+    x_now, v_now = _present(rows, w05, now_s)
+    y05 = _window_mean(rows[:, :, 2], w05)
+    vlat = _window_mean(rows[:, :, 3] * np.sin(rows[:, :, 4]), window(0.6))
+    p_aggr = np.array([p_aggressive(records.get(int(i)), prior_aggressive) for i in ids])
+    return TwinPicture(ids, now_s, x_now, y05, v_now, vlat, p_aggr)
+
+
 def intention_inputs(
     store: FixStore,
     records: dict[int, DriverRecord],
@@ -352,16 +422,9 @@ def intention_inputs(
     t, x, y, v, heading = (rows[:, :, k] for k in range(5))
     valid = ~np.isnan(t)
     t_last = t[:, -1]
-    age = t_last[:, None] - t
-
-    def window(w: float) -> np.ndarray:
-        m = valid & (age < w - 1e-9)
-        m[:, -1] = True
-        return m
-
+    window = _windows(t)
     w05, w1, w2 = window(0.5), window(1.0), valid
-    x_now = _window_mean(x + v * np.cos(heading) * (now_s - t), w05)
-    v_now = _window_mean(v, w05)
+    x_now, v_now = _present(rows, w05, now_s)
     t_first = np.nanmin(t, axis=1)
     first = valid & (t < t_first[:, None] + 0.5)
     span = _window_mean(t, w05) - _window_mean(t, first)
