@@ -258,6 +258,42 @@ def test_an_oracle_from_the_picture_foresees_a_move_under_way_and_not_a_car_keep
         _picture_oracle().estimate(road, 0.0, DT, ids, lanes)
 
 
+def test_with_the_twins_estimate_a_picture_copy_draws_the_moves_under_way_from_it():
+    from dataclasses import replace
+
+    picture = _picture([(7, 330.0, 4.6, 25.0, 0.5, 0.0), (8, 120.0, 0.0, 25.0, 0.0, 0.0)])
+    road = Road(network=RoadNetwork.straight_road_network(3, speed_limit=30), np_random=np.random.default_rng(0))
+    ids, lanes = np.array([7, 8]), np.array([1, 0])
+    assert np.all(_picture_oracle().estimate(road, 0.0, DT, ids, lanes, picture)[0, 2, 2] == 1.0)  # by the fixes: moving
+    # the twin says car 7 (drifting right by its fixes) stays and car 8 moves right: the copies follow the twin
+    moves = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+    p = _picture_oracle().estimate(road, 0.0, DT, ids, lanes, replace(picture, p_move=moves))
+    assert np.all(p[0, :, 0] == 1.0) and np.all(p[1, 2, 2] == 1.0)
+    half = np.array([[0.0, 0.0], [0.0, 0.0], [0.5, 0.0]])
+    p = _picture_oracle(rollouts=40).estimate(road, 0.0, DT, ids, lanes, replace(picture, p_move=half))
+    assert p[1, 2, 0] == 1.0  # lane 0 has no left neighbour: no move
+    p = _picture_oracle(rollouts=40).estimate(road, 0.0, DT, ids, np.array([1, 1]),
+                                              replace(picture, p_move=np.array([[0, 0], [0.5, 0], [0, 0]])))
+    assert 0.25 < p[0, 2, 1] < 0.75  # car 7 moves left in about half of the copies
+
+
+def test_the_twins_moves_come_from_its_intention_estimate():
+    from dt_highway.config import IntentionConfig
+    from dt_highway.twin.intention import IntentionEstimator, twin_picture
+    from dt_highway.twin.store import FixStore
+    from dt_highway.twin.tagger import HighwayMap
+    from dt_highway.twin.uplink import GnssFix
+
+    store = FixStore(30.0)
+    store.add([GnssFix(vid, t / 10, 25.0 * t / 10 + 10 * vid, 4.0 * vid, 25.0, 0.0, t / 10 + 0.1)
+               for vid in (0, 1) for t in range(80, 101)])
+    table = IntentionEstimator(IntentionConfig(), HighwayMap(4.0, 3)).estimate(store, {}, 10.0)
+    picture = twin_picture(store, {}, 10.0).with_moves(table)
+    assert picture.p_move is not None and picture.p_move.shape == (2, 2)
+    assert np.array_equal(picture.p_move[0], [0.0, 0.0])  # the ego is not judged
+    assert np.allclose(picture.p_move[1], table.probs[0, 0, 1:])
+
+
 def test_picture_settings_are_checked():
     with pytest.raises(ValueError, match="cannot start from 'minds'"):
         OracleSettings(start="minds")  # type: ignore[arg-type]

@@ -153,7 +153,7 @@ class _Recorder:
             if self.oracle is not None:
                 twin = env.twin
                 picture = None if self.oracle.settings.start != "picture" else twin_picture(
-                    twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
+                    twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive).with_moves(table)
                 self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
                                                               table.inputs.vehicle_ids, table.inputs.lane, picture))
         view = env.twin_view

@@ -40,10 +40,13 @@ motion from its fixes, the tagger's posterior that its driver is aggressive) and
 driver models: a twin with a perfect traffic model and the cloud's data. Per copy, each driver's type is drawn from the
 tagger's posterior and gets its type's presets (``traffic.normal`` / ``traffic.aggressive``) with its present speed as
 its desired speed, a MOBIL timer drawn in its decision period, and, if aggressive, a cut-in policy whose next attempt is a
-fresh draw; a vehicle is put at its lateral position, headed along its lateral speed, and moving toward the
-neighbouring lane when it is more than :data:`MOVING_OFFSET_M` off its lane's centre and moving outward faster than
-:data:`MOVING_LATERAL_MPS`. The ego is an IDM car keeping its lane at its present speed. The road's geometry is the
-simulator's (the twin knows the map). The copies share the picture and differ in what the cloud does not know.
+fresh draw; a vehicle is put at its lateral position, headed along its lateral speed. Whether it is already moving
+to a neighbouring lane is drawn per copy from the twin's own estimate of a move within its shortest horizon
+(``picture.p_move``, from the intention network, which reads the lateral motion of the fixes); a picture without
+one judges it from the fixes alone (more than :data:`MOVING_OFFSET_M` off its lane's centre and moving outward faster
+than :data:`MOVING_LATERAL_MPS`; 1 m fixes make that judgement poor). The ego is an IDM car keeping its lane at its
+present speed. The road's geometry is the simulator's (the twin knows the map). The copies share the picture and
+differ in what the cloud does not know.
 """
 
 from __future__ import annotations
@@ -259,8 +262,8 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         lane = int(lanes[i])
         lane_index = ("0", "1", lane)
         offset = y - (road_map.first_lane_y_m + lane * road_map.lane_width_m)
-        side = int(np.sign(vlat)) if abs(vlat) > MOVING_LATERAL_MPS and offset * vlat > 0 \
-            and abs(offset) > MOVING_OFFSET_M and 0 <= lane + int(np.sign(vlat)) < road_map.n_lanes else 0
+        side = _moving(picture, i, offset, vlat, rng)
+        side = side if 0 <= lane + side < road_map.n_lanes else 0
         aggressive = vid != ego_id and bool(rng.random() < picture.p_aggressive[i])
         params = traffic.aggressive if aggressive else traffic.normal
         profile = DriverProfile.from_preset(params, speed, traffic.cut_in_rate_per_min if aggressive else 0.0)
@@ -278,6 +281,18 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
             v.cut_in = _cut_in_policy(traffic, profile, rng)
         road.vehicles.append(v)
     return road
+
+
+def _moving(picture: TwinPicture, i: int, offset_m: float, lateral_speed_mps: float, rng: np.random.Generator) -> int:
+    """The side a pictured vehicle is moving to in this copy (-1 left, +1 right, 0 none): drawn from the twin's
+    ``p_move`` when the picture has it, else judged from its offset and lateral speed."""
+    if picture.p_move is not None:
+        p_left, p_right = (float(p) for p in picture.p_move[i])
+        u = float(rng.random())
+        return -1 if u < p_left else 1 if u < p_left + p_right else 0
+    if abs(lateral_speed_mps) > MOVING_LATERAL_MPS and abs(offset_m) > MOVING_OFFSET_M and offset_m * lateral_speed_mps > 0:
+        return int(np.sign(lateral_speed_mps))
+    return 0
 
 
 def _cut_in_policy(traffic: TrafficConfig, profile: DriverProfile, rng: np.random.Generator) -> CutInPolicy:

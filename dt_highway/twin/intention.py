@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
@@ -362,6 +362,8 @@ class TwinPicture:
     :param lateral_speed_mps: ``speed sin(course)``, mean of the last 0.6 s (positive: toward higher lane ids),
         ``(N,)`` [m/s]
     :param p_aggressive: the tagger's posterior that the driver is aggressive, ``(N,)`` [-]
+    :param p_move: the twin's estimate that the vehicle moves to its left / right lane within the intention model's
+        shortest horizon, ``(N, 2)`` [-] (:meth:`with_moves`; ``None``: not given)
     """
 
     vehicle_ids: np.ndarray
@@ -371,9 +373,20 @@ class TwinPicture:
     speed_mps: np.ndarray
     lateral_speed_mps: np.ndarray
     p_aggressive: np.ndarray
+    p_move: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.vehicle_ids)
+
+    def with_moves(self, table: IntentTable) -> TwinPicture:
+        """:return: this picture with :attr:`p_move` from an intention estimate (0 for a vehicle it did not judge,
+        such as the ego)"""
+        p_move = np.zeros((len(self), 2))
+        for i, vid in enumerate(self.vehicle_ids.tolist()):
+            k = table._index.get(int(vid))
+            if k is not None:
+                p_move[i] = table.probs[k, 0, 1:]
+        return replace(self, p_move=p_move)
 
 
 def twin_picture(store: FixStore, records: dict[int, DriverRecord], now_s: float,
