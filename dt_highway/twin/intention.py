@@ -330,7 +330,7 @@ def _mobil(x: np.ndarray, v: np.ndarray, lead: np.ndarray, s_lead: np.ndarray, s
 
 
 def _windows(t: np.ndarray) -> Callable[[float], np.ndarray]:
-    """:return: ``window(w)``: the mask of each row's fixes younger than ``w`` [s] than its newest (which is always in)"""
+    """:return: ``window(w)``: the mask of each row's fixes less than ``w`` [s] older than its newest (always in)"""
     valid = ~np.isnan(t)
     age = t[:, -1:] - t
 
