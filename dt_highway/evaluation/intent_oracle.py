@@ -62,7 +62,7 @@ from highway_env.road.road import Road, RoadNetwork
 
 from dt_highway.world.continuum import DriverProfile
 from dt_highway.world.road import FastRoad
-from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, vehicle_id
+from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, cut_in_policy, vehicle_id
 
 if TYPE_CHECKING:
     from dt_highway.config import TrafficConfig
@@ -278,7 +278,8 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         if vid == ego_id:
             v.enable_lane_change = False
         elif aggressive:
-            v.cut_in = _cut_in_policy(traffic, profile, rng)
+            v.cut_in = cut_in_policy(traffic, profile.cut_in_rate_per_min, rng)
+            v.cut_in.schedule(0.0)  # the next attempt: a fresh draw
         road.vehicles.append(v)
     return road
 
@@ -293,19 +294,6 @@ def _moving(picture: TwinPicture, i: int, offset_m: float, lateral_speed_mps: fl
     if abs(lateral_speed_mps) > MOVING_LATERAL_MPS and abs(offset_m) > MOVING_OFFSET_M and offset_m * lateral_speed_mps > 0:
         return int(np.sign(lateral_speed_mps))
     return 0
-
-
-def _cut_in_policy(traffic: TrafficConfig, profile: DriverProfile, rng: np.random.Generator) -> CutInPolicy:
-    """An aggressive driver's cut-in policy as the simulator makes it, its next attempt a fresh draw."""
-    policy = CutInPolicy(
-        rate_per_min=profile.cut_in_rate_per_min, gap_m=traffic.cut_in_gap_m, search_range_m=traffic.cut_in_range_m,
-        ego_preference=traffic.cut_in_ego_preference, chase_patience_s=traffic.cut_in_chase_s, rng=rng,
-        dangerous_share=traffic.dangerous.share, dangerous_gap_m=traffic.dangerous.gap_m,
-        brake_mps2=traffic.dangerous.brake_mps2, speed_drop_mps=traffic.dangerous.speed_drop_mps,
-        brake_in_lane_only=traffic.dangerous.brake_onset == "in_lane",
-    )
-    policy.schedule(0.0)
-    return policy
 
 
 class Oracle:

@@ -416,6 +416,38 @@ class CutInPolicy:
         return out
 
 
+def cut_in_policy(
+    config: TrafficConfig,
+    rate_per_min: float,
+    rng: np.random.Generator,
+    on_cut_in: Callable[[TypedDriverVehicle, Vehicle], None] | None = None,
+    on_lane_hop: Callable[[TypedDriverVehicle], None] | None = None,
+) -> CutInPolicy:
+    """A driver's cut-in policy with the ``traffic`` section's settings (its first attempt not yet scheduled).
+
+    :param config: the traffic section (gaps, range, ego preference, chase time, dangerous cut-ins)
+    :param rate_per_min: the driver's attempt rate [1/min]
+    :param rng: the policy's random generator
+    :param on_cut_in: called at each cut-in (the traffic's event log)
+    :param on_lane_hop: called at each lane hop
+    """
+    return CutInPolicy(
+        rate_per_min=rate_per_min,
+        gap_m=config.cut_in_gap_m,
+        search_range_m=config.cut_in_range_m,
+        ego_preference=config.cut_in_ego_preference,
+        chase_patience_s=config.cut_in_chase_s,
+        rng=rng,
+        on_cut_in=on_cut_in,
+        on_lane_hop=on_lane_hop,
+        dangerous_share=config.dangerous.share,
+        dangerous_gap_m=config.dangerous.gap_m,
+        brake_mps2=config.dangerous.brake_mps2,
+        speed_drop_mps=config.dangerous.speed_drop_mps,
+        brake_in_lane_only=config.dangerous.brake_onset == "in_lane",
+    )
+
+
 @dataclass
 class TrafficEvent:
     """Something that happened in traffic (ground truth, for evaluation and logs).
@@ -485,21 +517,8 @@ class TrafficManager:
         v.dt_connected = driver.connected
         v.clock_s = self.time_s
         if profile.cut_in_rate_per_min > 0:
-            v.cut_in = CutInPolicy(
-                rate_per_min=profile.cut_in_rate_per_min,
-                gap_m=self.config.cut_in_gap_m,
-                search_range_m=self.config.cut_in_range_m,
-                ego_preference=self.config.cut_in_ego_preference,
-                chase_patience_s=self.config.cut_in_chase_s,
-                rng=self.rng,
-                on_cut_in=self._record_cut_in,
-                on_lane_hop=self._record_lane_hop,
-                dangerous_share=self.config.dangerous.share,
-                dangerous_gap_m=self.config.dangerous.gap_m,
-                brake_mps2=self.config.dangerous.brake_mps2,
-                speed_drop_mps=self.config.dangerous.speed_drop_mps,
-                brake_in_lane_only=self.config.dangerous.brake_onset == "in_lane",
-            )
+            v.cut_in = cut_in_policy(self.config, profile.cut_in_rate_per_min, self.rng, self._record_cut_in,
+                                     self._record_lane_hop)
             v.cut_in.schedule(self.time_s)
         return v
 
