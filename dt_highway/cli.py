@@ -37,6 +37,7 @@ from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, lo
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.calibration import calibrate, calibration_table, markdown
+from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
 from dt_highway.evaluation.frames import record_frames
 from dt_highway.evaluation.intent import (
     INTENT_EPISODES,
@@ -46,7 +47,7 @@ from dt_highway.evaluation.intent import (
     run_intent_sweep,
     sweep_steps,
 )
-from dt_highway.evaluation.intent_oracle import HIDEABLE, STARTS, OracleSettings
+from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, STARTS, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
@@ -154,11 +155,16 @@ def _progress(total: int, desc: str, quiet: bool, unit: str = "step", initial: i
 
 def _oracle_hide(text: str) -> frozenset[str]:
     names = frozenset(n.strip() for n in text.split(",") if n.strip())
-    unknown = sorted(names - set(HIDEABLE))
+    unknown = sorted(names - set(HIDEABLE) - set(PICTURE_HIDEABLE))
     if unknown or not names:
-        raise argparse.ArgumentTypeError(f"--oracle-hide takes a comma-separated list of {', '.join(HIDEABLE)} "
-                                         f"(got '{text}')")
+        raise argparse.ArgumentTypeError(f"--oracle-hide takes a comma-separated list of {', '.join(HIDEABLE)} (with "
+                                         f"--oracle-from state) or {', '.join(PICTURE_HIDEABLE)} (with --oracle-from "
+                                         f"picture) (got '{text}')")
     return names
+
+
+def _test_episodes(text: str) -> int:
+    return _whole(text, "--test-episodes must be a whole number", "--test-episodes must be >= 0")
 
 
 def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]:
@@ -245,8 +251,12 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         raise ConfigError("--oracle-hide goes with --oracle N")
     if args.oracle_from != "state" and args.oracle is None:
         raise ConfigError("--oracle-from goes with --oracle N")
-    if args.oracle_from == "picture" and args.oracle_hide:
-        raise ConfigError("--oracle-hide goes with --oracle-from state (the twin's picture has none of the state to hide)")
+    wrong = sorted(set(args.oracle_hide) - set(HIDEABLE if args.oracle_from == "state" else PICTURE_HIDEABLE))
+    if args.oracle_from == "picture" and wrong:
+        raise ConfigError(f"--oracle-hide {','.join(wrong)} goes with --oracle-from state (the twin's picture has none of "
+                          f"the state to hide; with --oracle-from picture it can hide: {', '.join(PICTURE_HIDEABLE)})")
+    if wrong:
+        raise ConfigError(f"--oracle-hide {','.join(wrong)} goes with --oracle-from picture")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
@@ -295,6 +305,39 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
                                   driver=driver)
     print(f"trained on {summary['samples']} estimates of seeds {summary['seeds'][0]}-{summary['seeds'][1]}, "
           f"final loss {summary['final_loss']:.4f}")
+    print(f"wrote {summary['out']}")
+    return 0
+
+
+def cmd_train_chase(args: argparse.Namespace) -> int:
+    """Train the twin's chase detector on simulated fixes and score it on held-out seeds."""
+    if args.scenario is None:
+        args.scenario = EVAL_SCENARIO
+    cfg = _config(args)
+    record = _progress((args.episodes + args.test_episodes) * episode_steps(cfg), "record", args.quiet)
+    fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
+    seeds, tests = range(args.seed, args.seed + args.episodes), range(args.test_seed, args.test_seed + args.test_episodes)
+    if set(seeds) & set(tests):
+        raise ConfigError(f"the held-out seeds {tests[0]}-{tests[-1]} overlap the training seeds {seeds[0]}-{seeds[-1]}: "
+                          "move --test-seed or --seed")
+    with record, fitting:
+        try:
+            summary = train_chase(cfg, args.episodes, args.seed, args.out, args.epochs, args.test_episodes,
+                                  args.test_seed,
+                                  progress=lambda stage, n: (record if stage == "record" else fitting).update(n))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    print(f"trained on {summary['samples']} estimates of seeds {summary['seeds'][0]}-{summary['seeds'][1]} "
+          f"({summary['chasing_share']:.1%} chasing the ego), final loss {summary['losses'][-1]:.4f}")
+    held = summary.get("held_out")
+    if held is not None:
+        print(f"held out, seeds {held['seeds'][0]}-{held['seeds'][1]}:")
+        for name in ("all", "near_ego"):
+            s = held[name]
+            at = ", ".join(f"{th:g}: {s[f'precision_at_{th:g}']:.2f} / {s[f'recall_at_{th:g}']:.2f}"
+                           for th in SCORE_THRESHOLDS)
+            print(f"  {name:8s} {s['samples']} estimates, {s['chasing']} chasing; AUC {s['auc']:.3f}; "
+                  f"precision / recall at {at}")
     print(f"wrote {summary['out']}")
     return 0
 
@@ -1020,6 +1063,21 @@ def build_parser() -> argparse.ArgumentParser:
                    "condition (default: the autopilot)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_intent)
+
+    p = sub.add_parser("train-chase", help="train the twin's detector of drivers chasing the ego (the picture oracle's "
+                       "open cut-in attempts) on simulated fixes")
+    _add_config_args(p, EVAL_SCENARIO)
+    p.add_argument("--out", required=True, help="weights file to write (.npz; the shipped one is "
+                   "dt_highway/twin/chase_weights.npz)")
+    p.add_argument("--episodes", type=_positive(int, "--episodes"), default=24,
+                   help="training episodes, one per seed (default 24)")
+    p.add_argument("--seed", type=_seed, default=TRAIN_SEED, help=f"first training seed (default {TRAIN_SEED})")
+    p.add_argument("--epochs", type=_positive(int, "--epochs"), default=12, help="passes over the data (default 12)")
+    p.add_argument("--test-episodes", type=_test_episodes, default=10,
+                   help="held-out episodes to score the detector on (default 10; 0: none)")
+    p.add_argument("--test-seed", type=_seed, default=TEST_SEED, help=f"their first seed (default {TEST_SEED})")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train_chase)
 
     p = sub.add_parser("train-tagger", help="fit the twin's evidence tagger (twin.tagger.model=evidence) on simulated "
                        "training seeds")

@@ -277,6 +277,44 @@ def test_with_the_twins_estimate_a_picture_copy_draws_the_moves_under_way_from_i
     assert 0.25 < p[0, 2, 1] < 0.75  # car 7 moves left in about half of the copies
 
 
+def test_a_driver_the_twin_judges_chasing_the_ego_has_its_attempt_open_in_the_copies():
+    from dataclasses import replace
+
+    from dt_highway.evaluation.intent_oracle import picture_road
+    from dt_highway.twin.tagger import HighwayMap
+
+    network = RoadNetwork.straight_road_network(3, speed_limit=30)
+    # car 9 tagged normal but judged chasing; car 7 tagged aggressive, not chasing; car 8 neither
+    picture = _picture([(7, 230.0, 0.0, 26.0, 0.0, 1.0), (8, 180.0, 0.0, 24.0, 0.0, 0.0), (9, 150.0, 8.0, 28.0, 0.0, 0.0)])
+    chased = picture.with_chases(np.array([9, 7]), np.array([1.0, 0.0]))
+    assert chased.p_chase is not None and chased.p_chase.tolist() == [0.0, 0.0, 0.0, 1.0]  # the ego: 0
+    for seed in range(5):
+        by_id = {v.dt_id: v for v in picture_road(network, chased, HighwayMap(4.0, 3), TrafficConfig(),
+                                                 np.random.default_rng(seed)).vehicles}
+        assert by_id[9].cut_in is not None and by_id[9].cut_in.next_attempt_s == 0.0  # aggressive, attempt open
+        assert by_id[7].cut_in is not None and by_id[7].cut_in.next_attempt_s > 0.0  # a fresh wait
+        assert by_id[8].cut_in is None
+    # p_chase 0 everywhere draws exactly what a picture without it draws
+    def state(p):
+        road = picture_road(network, p, HighwayMap(4.0, 3), TrafficConfig(), np.random.default_rng(3))
+        return [(v.dt_id, v.timer, v.cut_in.next_attempt_s if v.cut_in else None) for v in road.vehicles]
+    assert state(picture) == state(replace(picture, p_chase=np.zeros(4)))
+    half = picture.with_chases(np.array([8]), np.array([0.5]))
+    opened = [next(v for v in picture_road(network, half, HighwayMap(4.0, 3), TrafficConfig(),
+                                           np.random.default_rng(s)).vehicles if v.dt_id == 8).cut_in for s in range(200)]
+    share = np.mean([c is not None and c.next_attempt_s == 0.0 for c in opened])
+    assert 0.4 < share < 0.6 and all(c is None or c.next_attempt_s == 0.0 for c in opened)  # chasing = aggressive here
+
+
+def test_the_picture_oracle_carries_the_twins_chase_detector_unless_hidden():
+    from dt_highway.twin.tagger import HighwayMap
+
+    assert _picture_oracle().chase is not None
+    hidden = Oracle(OracleSettings(start="picture", hide=frozenset({"chases"})), HORIZONS, TrafficConfig(),
+                    HighwayMap(4.0, 3))
+    assert hidden.chase is None and Oracle(OracleSettings(), HORIZONS).chase is None
+
+
 def test_the_twins_moves_come_from_its_intention_estimate():
     from dt_highway.config import IntentionConfig
     from dt_highway.twin.intention import IntentionEstimator, twin_picture
@@ -297,8 +335,10 @@ def test_the_twins_moves_come_from_its_intention_estimate():
 def test_picture_settings_are_checked():
     with pytest.raises(ValueError, match="cannot start from 'minds'"):
         OracleSettings(start="minds")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="not from the twin's picture"):
+    with pytest.raises(ValueError, match=r"starting from the twin's picture cannot hide speeds \(it can hide: chases\)"):
         OracleSettings(start="picture", hide=frozenset({"speeds"}))
+    with pytest.raises(ValueError, match=r"starting from the simulator's state cannot hide chases"):
+        OracleSettings(hide=frozenset({"chases"}))
     with pytest.raises(ValueError, match="needs the traffic settings and the map"):
         Oracle(OracleSettings(start="picture"), HORIZONS)
 
@@ -315,11 +355,15 @@ def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_mode
     assert list(result["models"]) == ["learned", "physics", "oracle", "learned+oracle"]
     assert main(args) == 0
     out = capsys.readouterr().out
-    assert "oracle (the twin's picture simulated with the simulator's driver models" in out
+    assert "oracle (the twin's picture and its chase detector's verdicts simulated with the simulator's driver models" in out
     assert "learned+oracle (the mean of the two estimates)" in out
     assert main(["twin-eval", "--intent", "--oracle-from", "picture", "--quiet", *TINY]) == 2
     assert "--oracle-from goes with --oracle N" in capsys.readouterr().err
     assert main([*args, "--oracle-hide", "timers"]) == 2
-    assert "--oracle-hide goes with --oracle-from state" in capsys.readouterr().err
+    assert "--oracle-hide timers goes with --oracle-from state" in capsys.readouterr().err
+    assert main([*args, "--oracle-hide", "chases", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["oracle"]["hide"] == ["chases"]
+    assert main([*args[:6], "--oracle-hide", "chases", "--quiet", *TINY]) == 2
+    assert "--oracle-hide chases goes with --oracle-from picture" in capsys.readouterr().err
     assert main(["twin-eval", "--oracle-from", "picture", "--quiet", *TINY]) == 2
     assert "--oracle-from goes with --intent" in capsys.readouterr().err

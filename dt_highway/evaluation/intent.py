@@ -54,7 +54,17 @@ from dt_highway.env import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.intent_oracle import Oracle, OracleSettings
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
-from dt_highway.twin.intention import NO_LANE, IntentionInputs, IntentionModel, make_model, twin_picture
+from dt_highway.twin.chase import ChaseDetector, ChaseInputs, chase_inputs
+from dt_highway.twin.cloud import CloudTwin
+from dt_highway.twin.intention import (
+    NO_LANE,
+    IntentionInputs,
+    IntentionModel,
+    IntentTable,
+    TwinPicture,
+    make_model,
+    twin_picture,
+)
 from dt_highway.world.traffic import EGO_ID, vehicle_id
 
 MERGE_S = 1.0
@@ -101,6 +111,7 @@ class Episode:
     :param t_end_s: last simulation time recorded [s]
     :param oracle: the oracle's ``(N, H, 3)`` probabilities for each of ``tables`` (recorded with an
         :class:`~dt_highway.evaluation.intent_oracle.Oracle`), else ``None``
+    :param chase: the chase detector's inputs and labels (see the attribute), else ``None``
     """
 
     dt_s: float
@@ -110,15 +121,19 @@ class Episode:
     cut_ins: list[dict[str, Any]]
     t_end_s: float
     oracle: list[np.ndarray] | None = None
+    chase: list[tuple[ChaseInputs, np.ndarray]] | None = None
+    """With ``record_episodes(..., chase=True)``: at each of ``tables``, the chase detector's inputs and whether each
+    of their vehicles' drivers was chasing the ego in the simulator (training labels, ``(N,)`` bool)"""
 
 
 class _Recorder:
     """Collects an :class:`Episode` from the env at every simulation step from ``from_s`` on
     (with an ``oracle``, also its estimate for every intention table)."""
 
-    def __init__(self, from_s: float, oracle: Oracle | None = None) -> None:
+    def __init__(self, from_s: float, oracle: Oracle | None = None, chase: bool = False) -> None:
         self.from_s = from_s
         self.oracle = oracle
+        self.chase: list[tuple[ChaseInputs, np.ndarray]] | None = [] if chase else None
         self.oracle_probs: list[np.ndarray] = []
         self.rows: list[tuple[float, int, int, bool]] = []
         self.tables: list[tuple[float, IntentionInputs]] = []
@@ -150,10 +165,10 @@ class _Recorder:
         if table is not None and table is not self._table:
             self._table = table
             self.tables.append((table.t_s - env.twin_offset_s, table.inputs))
+            if self.chase is not None:
+                self.chase.append(_chase_sample(env))
             if self.oracle is not None:
-                twin = env.twin
-                picture = None if self.oracle.settings.start != "picture" else twin_picture(
-                    twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive).with_moves(table)
+                picture = None if self.oracle.settings.start != "picture" else _picture(env, table, self.oracle.chase)
                 self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
                                                               table.inputs.vehicle_ids, table.inputs.lane, picture))
         view = env.twin_view
@@ -180,7 +195,39 @@ class _Recorder:
     def episode(self, dt_s: float) -> Episode:
         truth = np.array(self.rows, dtype=float).reshape(-1, 4)
         return Episode(dt_s, truth, self.tables, self.views, self.cut_ins, self.t_s,
-                       self.oracle_probs if self.oracle is not None else None)
+                       self.oracle_probs if self.oracle is not None else None, self.chase)
+
+
+def _twin(env: DTHighwayEnv) -> CloudTwin:
+    if env.twin is None:
+        raise ValueError("the recording needs the twin on")
+    return env.twin
+
+
+def _chase_inputs(env: DTHighwayEnv) -> ChaseInputs:
+    twin = _twin(env)
+    return chase_inputs(twin.store, twin.tagger.records, twin.road, twin.now_s, EGO_ID, twin.config.tagger.prior_aggressive)
+
+
+def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None) -> TwinPicture:
+    """The twin's picture of now, with its moves (from ``table``) and, given a detector, who it thinks is chasing
+    the ego."""
+    twin = _twin(env)
+    picture = twin_picture(twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
+    picture = picture.with_moves(table)
+    if chase is not None:
+        inputs = _chase_inputs(env)
+        picture = picture.with_chases(inputs.vehicle_ids, chase.predict(inputs))
+    return picture
+
+
+def _chase_sample(env: DTHighwayEnv) -> tuple[ChaseInputs, np.ndarray]:
+    """The chase detector's inputs now and their labels: whether each driver was chasing the ego in the simulator
+    (its open cut-in attempt has set a speed to reach the window ahead of the ego)."""
+    inputs = _chase_inputs(env)
+    chasing = {vehicle_id(v): getattr(getattr(v, "cut_in", None), "desired_speed_mps", None) is not None
+               for v in env.road.vehicles}
+    return inputs, np.array([chasing.get(int(i), False) for i in inputs.vehicle_ids], dtype=bool)
 
 
 class RecordingEnv(DTHighwayEnv):
@@ -232,6 +279,7 @@ def record_episodes(
     progress: Callable[[int], None] | None = None,
     driver: Driver | None = None,
     oracle: OracleSettings | None = None,
+    chase: bool = False,
 ) -> list[Episode]:
     """Run and record episodes of one env (ego on the autopilot, or driven by ``driver``).
 
@@ -244,6 +292,7 @@ def record_episodes(
         (reset with each episode's seed; an episode that continues the world, seed ``None``, gives it the
         first seed plus the episode's index); ``None``: the autopilot
     :param oracle: also record the oracle's estimates (:mod:`~dt_highway.evaluation.intent_oracle`)
+    :param chase: also record the chase detector's inputs and labels (:attr:`Episode.chase`, training data)
     :return: one :class:`Episode` per seed (a driven episode ends early at a collision)
     """
     cfg = eval_config(config, driven=driver is not None)
@@ -255,7 +304,7 @@ def record_episodes(
         for i, seed in enumerate(seeds):
             seer = None if oracle is None else Oracle(replace(oracle, seed=oracle.seed + i), horizons, cfg.traffic,
                                                       env.road_map)
-            env.recorder = _Recorder(-math.inf if with_preroll else 0.0, seer)
+            env.recorder = _Recorder(-math.inf if with_preroll else 0.0, seer, chase)
             env.reset(seed=seed)
             act: Callable[[], np.ndarray] = env.action_space.sample  # the autopilot ignores the action
             if driver is not None:
@@ -757,7 +806,8 @@ def _model_note(result: dict[str, Any], name: str) -> str:
     if name == result["configured_model"]:
         return " (configured)"
     if name == ORACLE and result.get("oracle", {}).get("start") == "picture":
-        return (f" (the twin's picture simulated with the simulator's driver models, {result['oracle']['rollouts']} "
+        chases = " and its chase detector's verdicts" if "chases" not in result["oracle"].get("hide", []) else ""
+        return (f" (the twin's picture{chases} simulated with the simulator's driver models, {result['oracle']['rollouts']} "
                 "futures per estimate: a twin with a perfect traffic model and the cloud's data)")
     if name.endswith(f"+{ORACLE}"):
         return " (the mean of the two estimates)"

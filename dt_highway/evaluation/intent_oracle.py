@@ -45,8 +45,11 @@ to a neighbouring lane is drawn per copy from the twin's own estimate of a move 
 (``picture.p_move``, from the intention network, which reads the lateral motion of the fixes); a picture without
 one judges it from the fixes alone (more than :data:`MOVING_OFFSET_M` off its lane's centre and moving outward faster
 than :data:`MOVING_LATERAL_MPS`; 1 m fixes make that judgement poor). The ego is an IDM car keeping its lane at its
-present speed. The road's geometry is the simulator's (the twin knows the map). The copies share the picture and
-differ in what the cloud does not know.
+present speed. The road's geometry is the simulator's (the twin knows the map). Whether an aggressive driver has a
+cut-in attempt open on the ego is drawn per copy from the twin's chase detector (``picture.p_chase``, from
+:class:`~dt_highway.twin.chase.ChaseDetector`: the driver is aggressive and chasing with that probability, and its
+attempt is then open from the start of the copy); ``hide = {"chases"}`` leaves it out (every attempt a fresh draw).
+The copies share the picture and differ in what the cloud does not know.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from highway_env.road.road import Road, RoadNetwork
 
+from dt_highway.twin.chase import ChaseDetector
 from dt_highway.world.continuum import DriverProfile
 from dt_highway.world.road import FastRoad
 from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, cut_in_policy, vehicle_id
@@ -72,7 +76,9 @@ if TYPE_CHECKING:
 ORACLE_PERIOD_S = 0.2
 """The oracle runs at most this often; an estimate in between reuses the last run [s]"""
 HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
-"""What the oracle can be denied (see the module docstring)"""
+"""What the oracle starting from the simulator's state can be denied (see the module docstring)"""
+PICTURE_HIDEABLE = ("chases",)
+"""What the oracle starting from the twin's picture can be denied: the twin's estimate of who is chasing the ego"""
 STARTS = ("state", "picture")
 """What the copies start from: the simulator's state, or the twin's picture (see the module docstring)"""
 MOVING_OFFSET_M = 0.5
@@ -88,7 +94,8 @@ class OracleSettings:
     :param rollouts: simulated futures per estimate (>= 1)
     :param period_s: the oracle runs at most this often [s]
     :param seed: seed of the copies' random generators
-    :param hide: the parts of the state the oracle is denied (names of :data:`HIDEABLE`)
+    :param hide: the parts of the state the oracle is denied (names of :data:`HIDEABLE`; starting from the picture,
+        of :data:`PICTURE_HIDEABLE`)
     :param sigma_position_m: with ``positions`` hidden, the error of a vehicle's position along the road [m]
     :param sigma_speed_mps: with ``positions`` hidden, the error of its speed [m/s]
     :param start: what the copies start from: ``"state"`` (the simulator's) or ``"picture"`` (the twin's)
@@ -105,14 +112,13 @@ class OracleSettings:
     def __post_init__(self) -> None:
         if self.rollouts < 1:
             raise ValueError(f"the oracle needs at least 1 rollout (got {self.rollouts})")
-        unknown = sorted(set(self.hide) - set(HIDEABLE))
-        if unknown:
-            raise ValueError(f"the oracle cannot hide {', '.join(unknown)} (it can hide: {', '.join(HIDEABLE)})")
         if self.start not in STARTS:
             raise ValueError(f"the oracle cannot start from {self.start!r} (it can start from: {', '.join(STARTS)})")
-        if self.start == "picture" and self.hide:
-            raise ValueError("hiding parts of the state goes with the oracle starting from the simulator's state, "
-                             "not from the twin's picture (which has none of them)")
+        allowed = HIDEABLE if self.start == "state" else PICTURE_HIDEABLE
+        unknown = sorted(set(self.hide) - set(allowed))
+        if unknown:
+            raise ValueError(f"the oracle starting from the {'twin' if self.start == 'picture' else 'simulator'}'s "
+                             f"{self.start} cannot hide {', '.join(unknown)} (it can hide: {', '.join(allowed)})")
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
@@ -264,7 +270,7 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         offset = y - (road_map.first_lane_y_m + lane * road_map.lane_width_m)
         side = _moving(picture, i, offset, vlat, rng)
         side = side if 0 <= lane + side < road_map.n_lanes else 0
-        aggressive = vid != ego_id and bool(rng.random() < picture.p_aggressive[i])
+        aggressive, chasing = _type(picture, i, vid != ego_id, rng)
         params = traffic.aggressive if aggressive else traffic.normal
         profile = DriverProfile.from_preset(params, speed, traffic.cut_in_rate_per_min if aggressive else 0.0)
         lane_obj = road.network.get_lane(lane_index)
@@ -279,9 +285,22 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
             v.enable_lane_change = False
         elif aggressive:
             v.cut_in = cut_in_policy(traffic, profile.cut_in_rate_per_min, rng)
-            v.cut_in.schedule(0.0)  # the next attempt: a fresh draw
+            v.cut_in.schedule(0.0)  # the next attempt: a fresh draw ...
+            if chasing:
+                v.cut_in.next_attempt_s = 0.0  # ... unless the twin judged it chasing the ego: open now
         road.vehicles.append(v)
     return road
+
+
+def _type(picture: TwinPicture, i: int, judged: bool, rng: np.random.Generator) -> tuple[bool, bool]:
+    """Whether a pictured vehicle's driver is aggressive in this copy, and whether it is chasing the ego: one draw
+    ``u``, aggressive when ``u < max(p_aggressive, p_chase)``, chasing when ``u < p_chase`` (a chasing driver is an
+    aggressive one; the ego, not ``judged``, is neither and draws nothing)."""
+    if not judged:
+        return False, False
+    u = float(rng.random())
+    p_chase = float(picture.p_chase[i]) if picture.p_chase is not None else 0.0
+    return u < max(float(picture.p_aggressive[i]), p_chase), u < p_chase
 
 
 def _moving(picture: TwinPicture, i: int, offset_m: float, lateral_speed_mps: float, rng: np.random.Generator) -> int:
@@ -315,6 +334,11 @@ class Oracle:
         self.horizons_s = horizons_s
         self.traffic = traffic
         self.road_map = road_map
+        self.chase: ChaseDetector | None = None
+        """The twin's chase detector the picture's ``p_chase`` comes from (``None``: starting from the state, or
+        ``chases`` hidden)"""
+        if settings.start == "picture" and "chases" not in settings.hide:
+            self.chase = ChaseDetector.load()
         self.rng = np.random.default_rng(settings.seed)
         self._last_t = -math.inf
         self._futures: Futures = {}

@@ -124,11 +124,18 @@ def fit(data: dict[str, np.ndarray], epochs: int = 25, batch: int = 1024, lr: fl
             losses.append(total / max(count, 1))
             if progress is not None:
                 progress(1)
-        layers = [(m.weight.detach().numpy().T.astype(np.float64).copy(), m.bias.detach().numpy().astype(np.float64).copy())
-                  for m in net if isinstance(m, torch.nn.Linear)]
+        layers = numpy_layers(net)
     finally:
         torch.set_num_threads(threads)
     return mean, scale, layers, losses
+
+
+def numpy_layers(net: Any) -> Layers:
+    """:return: the ``(W, b)`` of each linear layer of a torch ``Sequential``, as float64 numpy (``W`` as ``(in, out)``)"""
+    import torch  # lazy: training only, as in fit
+
+    return [(m.weight.detach().numpy().T.astype(np.float64).copy(), m.bias.detach().numpy().astype(np.float64).copy())
+            for m in net if isinstance(m, torch.nn.Linear)]
 
 
 def sample_weights(x: np.ndarray) -> np.ndarray:

@@ -70,6 +70,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from dt_highway.labels import AGGRESSIVE
+from dt_highway.twin.weights import read_weights, write_weights
 
 if TYPE_CHECKING:
     from dt_highway.config import IntentionConfig
@@ -364,6 +365,8 @@ class TwinPicture:
     :param p_aggressive: the tagger's posterior that the driver is aggressive, ``(N,)`` [-]
     :param p_move: the twin's estimate that the vehicle moves to its left / right lane within the intention model's
         shortest horizon, ``(N, 2)`` [-] (:meth:`with_moves`; ``None``: not given)
+    :param p_chase: the twin's estimate that the driver is chasing the ego (has a cut-in attempt open on it),
+        ``(N,)`` [-] (:meth:`with_chases`, from :class:`~dt_highway.twin.chase.ChaseDetector`; ``None``: not given)
     """
 
     vehicle_ids: np.ndarray
@@ -374,9 +377,21 @@ class TwinPicture:
     lateral_speed_mps: np.ndarray
     p_aggressive: np.ndarray
     p_move: np.ndarray | None = None
+    p_chase: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.vehicle_ids)
+
+    def with_chases(self, vehicle_ids: np.ndarray, p_chase: np.ndarray) -> TwinPicture:
+        """:return: this picture with :attr:`p_chase` for ``vehicle_ids`` (0 for a vehicle not among them, such as
+        the ego)"""
+        index = {int(v): k for k, v in enumerate(np.asarray(vehicle_ids).tolist())}
+        out = np.zeros(len(self))
+        for i, vid in enumerate(self.vehicle_ids.tolist()):
+            k = index.get(int(vid))
+            if k is not None:
+                out[i] = float(p_chase[k])
+        return replace(self, p_chase=out)
 
     def with_moves(self, table: IntentTable) -> TwinPicture:
         """:return: this picture with :attr:`p_move` from an intention estimate (0 for a vehicle it did not judge,
@@ -564,11 +579,7 @@ class LearnedIntention:
 
     @staticmethod
     def _from_npz(path: Path, horizons_s: tuple[float, ...]) -> LearnedIntention:
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"cannot read intention weights {path}: {exc}") from None
+        arrays, layers, meta = read_weights(path, "intention")
         own = tuple(str(s) for s in arrays.get("own_features", ()))
         side = tuple(str(s) for s in arrays.get("side_features", ()))
         if own != OWN_FEATURES or side != SIDE_FEATURES:
@@ -578,9 +589,6 @@ class LearnedIntention:
         bad = [h for h in horizons_s if not lo - 1e-9 <= h <= hi + 1e-9]
         if bad:
             raise ValueError(f"the learned intention model covers horizons {lo:g}-{hi:g} s (got {bad[0]:g})")
-        n_layers = sum(1 for k in arrays if k.startswith("W"))
-        layers = tuple((arrays[f"W{i}"], arrays[f"b{i}"]) for i in range(n_layers))
-        meta = {k[5:]: str(arrays[k]) for k in arrays if k.startswith("meta_")}
         return LearnedIntention(trained, tuple(horizons_s), arrays["mean"], arrays["scale"], layers, meta)
 
     def utility(self, inputs: IntentionInputs) -> np.ndarray:
@@ -610,17 +618,11 @@ class LearnedIntention:
 def save_weights(path: str | Path, horizons_s: tuple[float, ...], mean: np.ndarray, scale: np.ndarray,
                  layers: list[tuple[np.ndarray, np.ndarray]], meta: dict[str, str] | None = None) -> None:
     """Write the learned model's weights as a ``.npz`` of plain arrays (no pickles)."""
-    arrays: dict[str, np.ndarray] = {
+    write_weights(path, {
         "horizons_s": np.asarray(horizons_s, dtype=np.float64), "mean": np.asarray(mean, dtype=np.float64),
         "scale": np.asarray(scale, dtype=np.float64),
         "own_features": np.asarray(OWN_FEATURES), "side_features": np.asarray(SIDE_FEATURES),
-    }
-    for i, (w, b) in enumerate(layers):
-        arrays[f"W{i}"], arrays[f"b{i}"] = np.asarray(w, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    for k, value in (meta or {}).items():
-        arrays[f"meta_{k}"] = np.asarray(value)
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)  # type: ignore[arg-type]  # numpy's stub types the keyword arrays as allow_pickle
+    }, layers, meta)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,43 @@
+"""Small perceptrons' weights as ``.npz`` files of plain arrays (no pickles): the twin's intention network and chase
+detector both ship and load theirs this way."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+Layers = tuple[tuple[np.ndarray, np.ndarray], ...]
+"""``(W, b)`` of each layer, ``W`` as ``(in, out)``"""
+
+
+def write_weights(path: str | Path, arrays: dict[str, np.ndarray], layers: list[tuple[np.ndarray, np.ndarray]],
+                  meta: dict[str, str] | None = None) -> None:
+    """Write ``arrays``, then each layer as ``W{i}`` / ``b{i}`` (float64) and each ``meta`` entry as ``meta_{key}``."""
+    out = dict(arrays)
+    for i, (w, b) in enumerate(layers):
+        out[f"W{i}"], out[f"b{i}"] = np.asarray(w, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    for k, value in (meta or {}).items():
+        out[f"meta_{k}"] = np.asarray(value)
+    with open(path, "wb") as fh:
+        np.savez(fh, **out)  # type: ignore[arg-type]  # numpy's stub types the keyword arrays as allow_pickle
+
+
+def read_weights(path: Path, what: str) -> tuple[dict[str, np.ndarray], Layers, dict[str, str]]:
+    """Read a file of :func:`write_weights` with ``allow_pickle=False``.
+
+    :param what: what the weights are, for the error (e.g. ``"chase"``)
+    :return: every array by name, the layers and the meta entries
+    :raises ValueError: when the file cannot be read as such a file (one line naming it)
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot read {what} weights {path}: {exc}") from None
+    n_layers = sum(1 for k in arrays if k.startswith("W"))
+    try:
+        layers = tuple((arrays[f"W{i}"], arrays[f"b{i}"]) for i in range(n_layers))
+    except KeyError as exc:
+        raise ValueError(f"cannot read {what} weights {path}: no layer array {exc}") from None
+    return arrays, layers, {k[5:]: str(arrays[k]) for k in arrays if k.startswith("meta_")}
