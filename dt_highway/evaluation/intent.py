@@ -168,7 +168,9 @@ class _Recorder:
             if self.chase is not None:
                 self.chase.append(_chase_sample(env))
             if self.oracle is not None:
-                picture = None if self.oracle.settings.start != "picture" else _picture(env, table, self.oracle.chase)
+                chase = self.oracle.chase
+                picture = None if self.oracle.settings.start != "picture" else (
+                    lambda: _picture(env, table, chase))  # made only when the oracle runs (every period_s)
                 self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
                                                               table.inputs.vehicle_ids, table.inputs.lane, picture))
         view = env.twin_view

@@ -344,16 +344,16 @@ class Oracle:
         self._futures: Futures = {}
 
     def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray,
-                 picture: TwinPicture | None = None) -> np.ndarray:
+                 picture: TwinPicture | Callable[[], TwinPicture] | None = None) -> np.ndarray:
         """:return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]
         (starting from the twin's ``picture`` of now, when the settings say so: a vehicle that is not in the last
-        run's picture stays)"""
+        run's picture stays; a function that makes the picture is called only when the oracle runs)"""
         if self.settings.start == "picture":
             if picture is None:
                 raise ValueError("this oracle starts from the twin's picture: pass it")
             if t_s - self._last_t >= self.settings.period_s - 1e-9:
                 self._last_t = t_s
-                self._futures = self._from_picture(road.network, picture, dt_s)
+                self._futures = self._from_picture(road.network, picture() if callable(picture) else picture, dt_s)
             return intents_from_futures(self._futures, self.settings.rollouts, vehicle_ids, lanes, self.horizons_s,
                                         t_s - self._last_t)
         if t_s - self._last_t >= self.settings.period_s - 1e-9:
