@@ -23,7 +23,7 @@ import numpy as np
 
 from dt_highway.config import DTConfig
 from dt_highway.evaluation.intent import Episode, record_episodes
-from dt_highway.evaluation.intent_train import numpy_layers
+from dt_highway.evaluation.intent_train import numpy_layers, train_epochs
 from dt_highway.evaluation.twin import auc
 from dt_highway.twin.chase import CHASE_FEATURES, HIDDEN, ChaseDetector, ChaseInputs, save_chase_weights
 
@@ -70,20 +70,9 @@ def fit_chase(x: np.ndarray, y: np.ndarray, epochs: int = 12, batch: int = 512, 
                                   torch.nn.Linear(hidden, hidden), torch.nn.Tanh(), torch.nn.Linear(hidden, 1))
         opt = torch.optim.Adam(net.parameters(), lr=lr)
         gen = torch.Generator().manual_seed(seed)
-        losses = []
-        for _ in range(epochs):
-            order = torch.randperm(len(xt), generator=gen)
-            total = 0.0
-            for start in range(0, len(order), batch):
-                idx = order[start:start + batch]
-                loss = torch.nn.functional.binary_cross_entropy_with_logits(net(xt[idx])[:, 0], yt[idx])
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                total += float(loss.detach()) * len(idx)
-            losses.append(total / max(len(xt), 1))
-            if progress is not None:
-                progress(1)
+        losses = train_epochs(opt, len(xt), epochs, batch, gen, lambda idx: (
+            torch.nn.functional.binary_cross_entropy_with_logits(net(xt[idx])[:, 0], yt[idx]), len(idx)),
+            progress=progress)
         layers = numpy_layers(net)
     finally:
         torch.set_num_threads(threads)
@@ -136,7 +125,8 @@ def train_chase(config: DTConfig, episodes: int, seed0: int, out: str | Path, ep
     seeds = [seed0 + i for i in range(episodes)]
     tests = [test_seed + i for i in range(test_episodes)]
     if set(seeds) & set(tests):
-        raise ValueError(f"the held-out seeds {tests[0]}-{tests[-1]} overlap the training seeds {seeds[0]}-{seeds[-1]}")
+        raise ValueError(f"the held-out seeds {tests[0]}-{tests[-1]} overlap the training seeds {seeds[0]}-{seeds[-1]}: "
+                         "move the held-out seeds or the training seeds")
     step = (lambda n: progress("record", n)) if progress else None
     x, y = chase_dataset(record_episodes(config, seeds, progress=step, chase=True))
     if not y.any():

@@ -108,26 +108,42 @@ def fit(data: dict[str, np.ndarray], epochs: int = 25, batch: int = 1024, lr: fl
         opt = torch.optim.Adam(net.parameters(), lr=lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs, 1))
         gen = torch.Generator().manual_seed(seed)
-        losses = []
-        for _ in range(epochs):
-            order = torch.randperm(len(xt), generator=gen)
-            total, count = 0.0, 0
-            for start in range(0, len(order), batch):
-                idx = order[start:start + batch]
-                loss, n = _nll(net, xt[idx], ok[idx], y[idx], weight[idx])
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-                total += float(loss.detach()) * n
-                count += n
-            sched.step()
-            losses.append(total / max(count, 1))
-            if progress is not None:
-                progress(1)
+        losses = train_epochs(opt, len(xt), epochs, batch, gen,
+                              lambda idx: _nll(net, xt[idx], ok[idx], y[idx], weight[idx]), sched, progress)
         layers = numpy_layers(net)
     finally:
         torch.set_num_threads(threads)
     return mean, scale, layers, losses
+
+
+def train_epochs(opt: Any, n_samples: int, epochs: int, batch: int, gen: Any, batch_loss: Callable[[Any], tuple[Any, int]],
+                 sched: Any = None, progress: Callable[[int], None] | None = None) -> list[float]:
+    """Adam-style minibatch training: each epoch a fresh permutation from ``gen``, one optimiser step per batch.
+
+    :param batch_loss: the loss of a batch of sample indices and the number of terms it averages
+    :param sched: a learning-rate scheduler stepped after each epoch (``None``: none)
+    :param progress: called with 1 after each epoch
+    :return: the mean loss of each epoch (weighted by the batches' terms)
+    """
+    import torch  # lazy: training only, as in fit
+
+    losses = []
+    for _ in range(epochs):
+        order = torch.randperm(n_samples, generator=gen)
+        total, count = 0.0, 0
+        for start in range(0, len(order), batch):
+            loss, n = batch_loss(order[start:start + batch])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * n
+            count += n
+        if sched is not None:
+            sched.step()
+        losses.append(total / max(count, 1))
+        if progress is not None:
+            progress(1)
+    return losses
 
 
 def numpy_layers(net: Any) -> Layers:
