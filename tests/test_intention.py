@@ -351,6 +351,53 @@ def test_when_the_driver_decided_is_the_last_switch_of_its_target_lane_seen():
         assert f"warned >= 1.5 s ahead {shown}" in "\n".join(format_intent(result))
 
 
+def test_cut_ins_by_gap_band_and_the_intervals_over_episodes():
+    from dt_highway.evaluation.intent import cut_in_scores, format_intent, view_samples
+
+    # car 5 warned from 1.0 s, cutting in at 2.5 s: lead 1.5 s; the same episode five times, at gaps 15 m and 50 m
+    eps = []
+    for gap in (15.0, 15.0, 15.0, 50.0, 50.0):
+        ep, probs = _episode(lambda t: (0.9 if t >= 1.0 - 1e-9 else 0.1, 0.0))
+        ep.cut_ins = [{**ep.cut_ins[0], "gap_m": gap}]
+        eps.append(ep)
+    truths = [Truth(ep.truth, 0.1) for ep in eps]
+    samples = [view_samples(ep, probs, 0) for ep in eps]
+    sc = cut_in_scores(eps, truths, samples, 0.5, 1.0, intervals=True)
+    assert {band: v["n"] for band, v in sc["by_gap_m"].items()} == {"0-10": 0, "10-20": 3, "20-40": 0, "40-60": 2}
+    assert sc["by_gap_m"]["10-20"]["median_lead_s"] == pytest.approx(1.5)
+    assert math.isnan(sc["by_gap_m"]["0-10"]["median_lead_s"])
+    # every episode alike: every resample alike, the intervals are points (car 6 is never warned)
+    iv = sc["intervals"]
+    assert iv["median_lead_s"] == pytest.approx([1.5, 1.5]) and iv["precision"] == [1.0, 1.0]
+    assert iv["recall"] == [1.0, 1.0] and iv["share_warned_1.5s_ahead"] == [1.0, 1.0]
+    assert iv["episodes"] == 5 and iv["level"] == 0.95
+    # too few episodes for an interval
+    assert cut_in_scores(eps[:4], truths[:4], samples[:4], 0.5, 1.0, intervals=True)["intervals"] is None
+    result = {"configured_model": "learned", "operating": {"horizon_s": 1.0, "threshold": 0.5}, "episodes": 5, "seed": 0,
+              "models": {"learned": {"per_horizon": [], "cut_ins": [
+                  {"horizon_s": 1.0, "at_threshold": sc, "best": sc, "longest_lead": sc, "recall_at_precision": 1.0}]}}}
+    text = "\n".join(format_intent(result))
+    assert "10-20 m 3, 1.50 s, 1.00; 40-60 m 2, 1.50 s, 1.00" in text and "0-10 m" not in text
+    assert ("95 % intervals (bootstrap over the 5 episodes): at precision >= 0.80 (threshold 0.500): median lead "
+            "1.50-1.50 s, precision 1.00-1.00") in text
+
+
+def test_the_resampled_medians_are_numpys_median_of_the_repeated_leads():
+    from dt_highway.evaluation.intent import _resampled_medians, episode_intervals
+
+    rng = np.random.default_rng(1)
+    per = [(np.where(rng.random(k) < 0.2, np.nan, rng.random(k) * 3), 1, 2) for k in rng.integers(0, 6, size=12)]
+    counts = np.stack([np.bincount(r, minlength=12) for r in rng.integers(0, 12, size=(300, 12))]).astype(float)
+    got = _resampled_medians(per, counts)
+    for c, g in zip(counts, got, strict=True):
+        leads = np.concatenate([np.repeat(e[0], int(k)) for e, k in zip(per, c, strict=True)])
+        warned = leads[~np.isnan(leads)]
+        assert (math.isnan(g) and not len(warned)) or g == np.median(warned)
+    assert episode_intervals(per) == episode_intervals(per)  # seeded: the same inputs, the same intervals
+    lo, hi = episode_intervals(per)["median_lead_s"]
+    assert lo < np.nanmedian(np.concatenate([e[0] for e in per])) < hi
+
+
 def test_a_warning_after_the_overlap_or_long_before_is_no_lead():
     runs = [Warning(5, 2.6, 3.0, True), Warning(5, 0.0, 0.2, False)]
     assert math.isnan(cut_in_leads([{"t_s": 2.5, "vehicle_id": 5}], runs, 1.0)[0])

@@ -94,6 +94,15 @@ ORACLE = "oracle"
 """The oracle's name among the scored models"""
 CUT_IN_GAP_M = 60.0
 """Cut-ins are counted within this bumper gap (the safety monitor's range) [m]"""
+GAP_BANDS_M = (0.0, 10.0, 20.0, 40.0, CUT_IN_GAP_M)
+"""The cut-ins' lead times are also given per band of bumper gap at their first overlap [m] (the closer a car
+cuts in, the less time headway the ego has without a warning)"""
+INTERVAL_LEVEL = 0.95
+"""Confidence level of the intervals of the chosen thresholds' cut-in figures [-]"""
+INTERVAL_RESAMPLES = 2000
+"""Bootstrap resamples of the episodes for those intervals"""
+INTERVAL_MIN_EPISODES = 5
+"""Fewest episodes for an interval (with fewer, none is given)"""
 
 
 # ----------------------------------------------------------------------------- recording
@@ -576,38 +585,55 @@ def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: 
     return leads
 
 
+def _lead_figures(lead: np.ndarray) -> dict[str, float]:
+    """Recall, median lead [s] and the shares warned at least :data:`LEAD_STEPS_S` ahead of cut-ins with these
+    lead times [s] (NaN: not warned)."""
+    nan = float("nan")
+    warned = ~np.isnan(lead)
+    out = {"recall": float(warned.mean()) if len(lead) else nan,
+           "median_lead_s": float(np.median(lead[warned])) if warned.any() else nan}
+    for s in LEAD_STEPS_S:
+        out[f"share_warned_{s:g}s_ahead"] = float((lead[warned] >= s).sum() / len(lead)) if len(lead) else nan
+    return out
+
+
 def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples: Sequence[ViewSamples],
-                  threshold: float, horizon_s: float) -> dict[str, Any]:
-    """Precision of the warning runs, recall and lead times of the cut-ins at one threshold and horizon."""
-    n_runs = n_true = 0
-    leads: list[float] = []
+                  threshold: float, horizon_s: float, intervals: bool = False) -> dict[str, Any]:
+    """Precision of the warning runs, recall and lead times of the cut-ins at one threshold and horizon, by kind
+    (``by_maneuver``) and by bumper gap at the overlap (``by_gap_m``, bands of :data:`GAP_BANDS_M`).
+
+    :param intervals: also give ``intervals``: the 95 % intervals of precision, recall, median lead and share
+        warned >= 1.5 s ahead from a bootstrap over the episodes (:func:`episode_intervals`)
+    """
+    per_episode: list[tuple[np.ndarray, int, int]] = []  # each episode's cut-ins' leads, its true runs, its runs
     kinds: list[str] = []
     decided: list[float] = []
+    gaps: list[float] = []
     nan = float("nan")
     duration = 0.0
     for ep, truth, smp in zip(episodes, truths, samples, strict=True):
         runs = runs_at(smp, truth, threshold, horizon_s)
-        n_runs += len(runs)
-        n_true += sum(w.true for w in runs)
         cuts = [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
-        leads += cut_in_leads(cuts, runs, horizon_s)
+        per_episode.append((np.array(cut_in_leads(cuts, runs, horizon_s), dtype=float), sum(w.true for w in runs),
+                            len(runs)))
         kinds += [c.get("maneuver") or "own" for c in cuts]
         decided += [c["t_s"] - c.get("t_decided_s", nan) for c in cuts]
+        gaps += [c["gap_m"] for c in cuts]
         duration += max(ep.t_end_s, 0.0)
-    lead = np.array(leads, dtype=float)
-    warned = ~np.isnan(lead)
+    lead = np.concatenate([e[0] for e in per_episode]) if per_episode else np.zeros(0)
+    n_true, n_runs = sum(e[1] for e in per_episode), sum(e[2] for e in per_episode)
     before = np.array(decided, dtype=float)
+    figures = _lead_figures(lead)
     out: dict[str, Any] = {
         "threshold": float(threshold),
         "precision": n_true / n_runs if n_runs else nan,
-        "recall": float(warned.mean()) if len(lead) else nan,
-        "median_lead_s": float(np.median(lead[warned])) if warned.any() else nan,
+        "recall": figures.pop("recall"),
+        "median_lead_s": figures.pop("median_lead_s"),
         "n_cut_ins": int(len(lead)),
         "n_warnings": n_runs,
         "false_warnings_per_min": (n_runs - n_true) / (duration / 60.0) if duration > 0 else nan,
+        **figures,
     }
-    for s in LEAD_STEPS_S:
-        out[f"share_warned_{s:g}s_ahead"] = float((lead[warned] >= s).sum() / len(lead)) if len(lead) else nan
     by_kind: dict[str, Any] = {}
     for kind in sorted(set(kinds)):
         sel = np.array([x == kind for x in kinds])
@@ -618,9 +644,72 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
                          "median_lead_s": float(np.median(lk[ok])) if ok.any() else nan,
                          "median_decided_before_s": float(np.median(bk)) if len(bk) else nan}
     out["by_maneuver"] = by_kind
+    gap = np.array(gaps, dtype=float)
+    out["by_gap_m"] = {f"{lo:g}-{hi:g}": {"n": int(sel.sum()), **_lead_figures(lead[sel])}
+                       for lo, hi in zip(GAP_BANDS_M[:-1], GAP_BANDS_M[1:], strict=True)
+                       for sel in [(gap >= lo) & (gap < hi)]}
     seen = before[~np.isnan(before)]
     out["median_decided_before_s"] = float(np.median(seen)) if len(seen) else nan
+    if intervals:
+        out["intervals"] = episode_intervals(per_episode)
     return out
+
+
+def episode_intervals(per_episode: Sequence[tuple[np.ndarray, int, int]], level: float = INTERVAL_LEVEL,
+                      resamples: int = INTERVAL_RESAMPLES, seed: int = 0) -> dict[str, list[float]] | None:
+    """Percentile-bootstrap intervals of the cut-in figures, resampling whole episodes (the cut-ins and warnings
+    of one episode share its traffic and its drivers, so they are not independent draws).
+
+    Written here rather than with :func:`scipy.stats.bootstrap`: that resamples the statistic's inputs one by one
+    and turns the whole interval into NaN when any resample has no value (a resample of episodes without a warned
+    cut-in has no median lead), where here such a resample is left out of that figure's interval; and the median
+    lead of every resample is computed at once, as a weighted median of the sorted leads.
+
+    :param per_episode: each episode's cut-ins' lead times [s] (NaN: not warned), its true warning runs and its runs
+    :param level: confidence level [-]
+    :param resamples: bootstrap resamples
+    :param seed: seed of the resampling (the same inputs give the same intervals)
+    :return: ``[low, high]`` of ``precision``, ``recall``, ``median_lead_s`` [s] and ``share_warned_1.5s_ahead``,
+        ``level`` and ``episodes``; ``None`` with fewer than :data:`INTERVAL_MIN_EPISODES` episodes
+    """
+    n = len(per_episode)
+    if n < INTERVAL_MIN_EPISODES:
+        return None
+    rng = np.random.default_rng(seed)
+    counts = np.stack([np.bincount(r, minlength=n) for r in rng.integers(0, n, size=(resamples, n))]).astype(float)
+    def total(per: Callable[[tuple[np.ndarray, int, int]], float]) -> np.ndarray:
+        """Each resample's sum of a per-episode count."""
+        return counts @ np.array([per(e) for e in per_episode], dtype=float)
+
+    n_cuts = total(lambda e: len(e[0]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        stats = {"precision": total(lambda e: e[1]) / total(lambda e: e[2]),
+                 "recall": total(lambda e: (~np.isnan(e[0])).sum()) / n_cuts,
+                 "median_lead_s": _resampled_medians(per_episode, counts),
+                 "share_warned_1.5s_ahead": total(lambda e: (e[0] >= 1.5).sum()) / n_cuts}
+    q = [50.0 * (1.0 - level), 50.0 * (1.0 + level)]
+    out: dict[str, Any] = {}
+    for name, values in stats.items():
+        v = values[np.isfinite(values)]
+        out[name] = [float(x) for x in np.percentile(v, q)] if len(v) else [float("nan")] * 2
+    return {**out, "level": level, "episodes": n}
+
+
+def _resampled_medians(per_episode: Sequence[tuple[np.ndarray, int, int]], counts: np.ndarray) -> np.ndarray:
+    """The median warned lead of each resample (row of ``counts``: how often each episode was drawn), as
+    :func:`numpy.median` of the leads repeated that often would give (NaN: no warned cut-in) [s]."""
+    leads = [(i, x) for i, e in enumerate(per_episode) for x in e[0][~np.isnan(e[0])].tolist()]
+    if not leads:
+        return np.full(len(counts), np.nan)
+    leads.sort(key=lambda p: p[1])
+    episode = np.array([p[0] for p in leads])
+    value = np.array([p[1] for p in leads])
+    weights = counts[:, episode]  # (resamples, leads): how many copies of each lead
+    cum = np.cumsum(weights, axis=1)
+    total = cum[:, -1]
+    lo = np.argmax(cum > ((total - 1) // 2)[:, None], axis=1)  # 0-based positions (T-1)//2 and T//2 of the sorted copies
+    hi = np.argmax(cum > (total // 2)[:, None], axis=1)
+    return np.where(total > 0, (value[lo] + value[hi]) / 2.0, np.nan)
 
 
 def score_model(episodes: Sequence[Episode], model: IntentionModel, intention: IntentionConfig) -> dict[str, Any]:
@@ -637,12 +726,15 @@ def score_probs(episodes: Sequence[Episode], probs: Sequence[list[np.ndarray]], 
     cut_ins = []
     for k, h in enumerate(horizons):
         samples = [view_samples(ep, pr, k) for ep, pr in zip(episodes, probs, strict=True)]
-        at_op = cut_in_scores(episodes, truths, samples, intention.threshold, h)
+        at_op = cut_in_scores(episodes, truths, samples, intention.threshold, h, intervals=True)
         grid = [cut_in_scores(episodes, truths, samples, float(th), h) for th in THRESHOLDS]
         ok = [g for g in grid if g["precision"] >= MIN_PRECISION]
         best = max(ok, key=lambda g: (g["recall"], -g["threshold"])) if ok else None
         both = [g for g in ok if g["recall"] >= MIN_RECALL and math.isfinite(g["median_lead_s"])]
         longest = max(both, key=lambda g: (g["median_lead_s"], -g["threshold"])) if both else None
+        # the chosen thresholds' figures again, with their intervals
+        best, longest = (None if g is None else cut_in_scores(episodes, truths, samples, g["threshold"], h, intervals=True)
+                         for g in (best, longest))
         cut_ins.append({
             "horizon_s": h,
             "at_threshold": at_op,
@@ -791,6 +883,7 @@ def format_intent(result: dict[str, Any]) -> list[str]:
                      f"{MIN_PRECISION:.2f} and recall >= {MIN_RECALL:.2f}: {_f(head['longest_median_lead_s'], 2)} s "
                      f"(threshold {_f(head['threshold_longest_lead'])})")
         lines.append(_by_kind(s, op["horizon_s"]))
+        lines += _by_gap_and_intervals(s, op["horizon_s"])
     return lines
 
 
@@ -830,6 +923,34 @@ def _by_kind(scores: dict[str, Any], horizon_s: float) -> str:
     cells = [f"{k} {v['n']}, {_f(v['median_lead_s'], 2)} s (decided {_f(v.get('median_decided_before_s', math.nan), 2)} s)"
              for k, v in kinds.items()]
     return f"  by kind {where} (n, median lead; the driver decided a median ... s before the overlap): " + ", ".join(cells)
+
+
+def _range(v: list[float] | None, digits: int = 2, unit: str = "") -> str:
+    return "-" if not v or not all(math.isfinite(x) for x in v) else f"{v[0]:.{digits}f}-{v[1]:.{digits}f}{unit}"
+
+
+def _by_gap_and_intervals(scores: dict[str, Any], horizon_s: float) -> list[str]:
+    """The lines of the cut-ins by gap band and of the intervals (at precision >= 0.80 and at the operating
+    threshold), when the scores have them."""
+    ci = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+    chosen = ci["best"] or ci["at_threshold"]
+    where = "at precision >= 0.80" if ci["best"] else "at the operating threshold"
+    lines = []
+    if "by_gap_m" in chosen:
+        cells = [f"{band} m {v['n']}, {_f(v['median_lead_s'], 2)} s, {_f(v['share_warned_1.5s_ahead'], 2)}"
+                 for band, v in chosen["by_gap_m"].items() if v["n"]]
+        lines.append(f"  by bumper gap at the overlap {where} (n, median lead, warned >= 1.5 s ahead): " + "; ".join(cells))
+    cells, level, n = [], 0.0, 0
+    for name, g in (("at precision >= 0.80", ci["best"]), ("at the operating threshold", ci["at_threshold"])):
+        iv = g.get("intervals") if g else None
+        if iv:
+            cells.append(f"{name} (threshold {_f(g['threshold'])}): median lead {_range(iv['median_lead_s'], 2, ' s')}, "
+                         f"precision {_range(iv['precision'])}, warned >= 1.5 s ahead "
+                         f"{_range(iv['share_warned_1.5s_ahead'])}")
+            level, n = iv["level"], iv["episodes"]
+    if cells:
+        lines.append(f"  {100 * level:g} % intervals (bootstrap over the {n} episodes): " + "; ".join(cells))
+    return lines
 
 
 def format_sweep(rows: list[dict[str, Any]]) -> list[str]:
