@@ -382,6 +382,15 @@ def test_cut_ins_by_gap_band_and_the_intervals_over_episodes():
             "1.50-1.50 s, precision 1.00-1.00") in text
 
 
+def test_the_sweep_prints_each_settings_interval_of_the_median_lead():
+    from dt_highway.evaluation.intent import format_sweep
+
+    row = {"parameter": "rate_hz", "value": 5.0, "auc": {"1s": 0.9, "2s": 0.8, "3s": 0.7}, "recall_at_precision_0_80": 1.0,
+           "threshold_there": 0.7, "median_lead_s_there": 0.73, "longest_median_lead_s": 0.73}
+    with_interval, without = format_sweep([{**row, "median_lead_s_there_interval": [0.6, 1.1666]}, row])[1:]
+    assert "0.73             0.60-1.17" in with_interval and "0.73             -" in without
+
+
 def test_the_resampled_medians_are_numpys_median_of_the_repeated_leads():
     from dt_highway.evaluation.intent import _resampled_medians, episode_intervals
 

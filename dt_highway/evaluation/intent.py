@@ -825,6 +825,7 @@ def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]
         "recall_at_precision_0_80": ci["recall_at_precision"],
         "threshold_there": best.get("threshold", float("nan")),
         "median_lead_s_there": best.get("median_lead_s", float("nan")),
+        "median_lead_s_there_interval": (best.get("intervals") or {}).get("median_lead_s"),
         "longest_median_lead_s": longest.get("median_lead_s", float("nan")),
         "threshold_longest_lead": longest.get("threshold", float("nan")),
         "op_precision": op["precision"],
@@ -956,11 +957,12 @@ def _by_gap_and_intervals(scores: dict[str, Any], horizon_s: float) -> list[str]
 def format_sweep(rows: list[dict[str, Any]]) -> list[str]:
     """The lines ``twin-eval --intent --sweep`` prints: one per uplink setting."""
     lines = [("parameter            value       AUC@1s AUC@2s AUC@3s  recall@P>=0.80  thr    median lead [s]  "
-              "longest lead @P>=0.80,R>=0.90 [s]")]
+              "95 % interval [s]  longest lead @P>=0.80,R>=0.90 [s]")]
     for r in rows:
         a = list(r["auc"].values())
         a += [float("nan")] * (3 - len(a))
         lines.append(f"{r['parameter']:20s} {str(r['value']):10s}  {_f(a[0])}  {_f(a[1])}  {_f(a[2])}   "
                      f"{_f(r['recall_at_precision_0_80'])}           {_f(r['threshold_there'])}  "
-                     f"{_f(r['median_lead_s_there'], 2):15s}  {_f(r['longest_median_lead_s'], 2)}")
+                     f"{_f(r['median_lead_s_there'], 2):15s}  {_range(r.get('median_lead_s_there_interval')):17s}  "
+                     f"{_f(r['longest_median_lead_s'], 2)}")
     return lines
