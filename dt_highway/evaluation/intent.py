@@ -656,14 +656,14 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
 
 
 def episode_intervals(per_episode: Sequence[tuple[np.ndarray, int, int]], level: float = INTERVAL_LEVEL,
-                      resamples: int = INTERVAL_RESAMPLES, seed: int = 0) -> dict[str, list[float]] | None:
+                      resamples: int = INTERVAL_RESAMPLES, seed: int = 0) -> dict[str, Any] | None:
     """Percentile-bootstrap intervals of the cut-in figures, resampling whole episodes (the cut-ins and warnings
     of one episode share its traffic and its drivers, so they are not independent draws).
 
-    Written here rather than with :func:`scipy.stats.bootstrap`: that resamples the statistic's inputs one by one
-    and turns the whole interval into NaN when any resample has no value (a resample of episodes without a warned
-    cut-in has no median lead), where here such a resample is left out of that figure's interval; and the median
-    lead of every resample is computed at once, as a weighted median of the sorted leads.
+    Written here rather than with :func:`scipy.stats.bootstrap` (given the episodes as its sample): that gives a
+    NaN interval, with a ``DegenerateDataWarning``, as soon as one resample has no value (a resample of episodes
+    without a warned cut-in has no median lead), where here such a resample is left out of that figure's interval;
+    and here the median lead of every resample is computed at once, as a weighted median of the sorted leads.
 
     :param per_episode: each episode's cut-ins' lead times [s] (NaN: not warned), its true warning runs and its runs
     :param level: confidence level [-]
@@ -677,6 +677,7 @@ def episode_intervals(per_episode: Sequence[tuple[np.ndarray, int, int]], level:
         return None
     rng = np.random.default_rng(seed)
     counts = np.stack([np.bincount(r, minlength=n) for r in rng.integers(0, n, size=(resamples, n))]).astype(float)
+
     def total(per: Callable[[tuple[np.ndarray, int, int]], float]) -> np.ndarray:
         """Each resample's sum of a per-episode count."""
         return counts @ np.array([per(e) for e in per_episode], dtype=float)
@@ -927,6 +928,7 @@ def _by_kind(scores: dict[str, Any], horizon_s: float) -> str:
 
 
 def _range(v: list[float] | None, digits: int = 2, unit: str = "") -> str:
+    """An interval ``[low, high]`` as ``"low-high"`` (``"-"`` when there is none)."""
     return "-" if not v or not all(math.isfinite(x) for x in v) else f"{v[0]:.{digits}f}-{v[1]:.{digits}f}{unit}"
 
 
