@@ -47,7 +47,7 @@ from dt_highway.evaluation.intent import (
     run_intent_sweep,
     sweep_steps,
 )
-from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, STARTS, OracleSettings
+from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, PICTURE_REVEALABLE, STARTS, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
 from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
@@ -163,6 +163,15 @@ def _oracle_hide(text: str) -> frozenset[str]:
     return names
 
 
+def _oracle_reveal(text: str) -> frozenset[str]:
+    names = frozenset(n.strip() for n in text.split(",") if n.strip())
+    unknown = sorted(names - set(PICTURE_REVEALABLE))
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"--oracle-reveal takes a comma-separated list of "
+                                         f"{', '.join(PICTURE_REVEALABLE)} (got '{text}')")
+    return names
+
+
 def _test_episodes(text: str) -> int:
     return _whole(text, "--test-episodes must be a whole number", "--test-episodes must be >= 0")
 
@@ -189,7 +198,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None),
                                    ("--oracle", args.oracle is not None),
                                    ("--oracle-hide", bool(args.oracle_hide)),
-                                   ("--oracle-from", args.oracle_from != "state")) if on]
+                                   ("--oracle-from", args.oracle_from != "state"),
+                                   ("--oracle-reveal", bool(args.oracle_reveal))) if on]
     if given:
         raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
@@ -257,6 +267,12 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
                           f"the state to hide; with --oracle-from picture it can hide: {', '.join(PICTURE_HIDEABLE)})")
     if wrong:
         raise ConfigError(f"--oracle-hide {','.join(wrong)} goes with --oracle-from picture")
+    if args.oracle_reveal and args.oracle_from != "picture":
+        raise ConfigError("--oracle-reveal goes with --oracle-from picture (the oracle starting from the simulator's "
+                          "state already has all of it)")
+    both = sorted(set(args.oracle_reveal) & set(args.oracle_hide))
+    if both:
+        raise ConfigError(f"--oracle-hide and --oracle-reveal both name {','.join(both)}: choose one")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
@@ -266,6 +282,7 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
             uplink = cfg.twin.uplink  # a hidden position is off by one of this uplink's fixes
             oracle = None if args.oracle is None else OracleSettings(
                 rollouts=args.oracle, seed=args.seed, hide=args.oracle_hide, start=args.oracle_from,
+                reveal=args.oracle_reveal,
                 sigma_position_m=uplink.noise_sigma_m, sigma_speed_mps=uplink.speed_noise_sigma_mps)
             result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
@@ -1037,6 +1054,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --oracle: what its futures start from: the simulator's state (default) or the twin's "
                    "picture (the cloud's fixes and tags, simulated with the simulator's driver models: a twin with a "
                    "perfect traffic model; also scores its mean with the configured model)")
+    p.add_argument("--oracle-reveal", type=_oracle_reveal, default=frozenset(), metavar="LIST",
+                   help="with --oracle-from picture: put these parts of the simulator's state into the twin's picture "
+                   f"instead of its estimates, comma-separated: {', '.join(PICTURE_REVEALABLE)} (who chases the ego; "
+                   "every car's lateral position, speed and the lane it steers to): what a better twin could gain")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

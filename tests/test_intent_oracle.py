@@ -341,6 +341,54 @@ def test_picture_settings_are_checked():
         OracleSettings(hide=frozenset({"chases"}))
     with pytest.raises(ValueError, match="needs the traffic settings and the map"):
         Oracle(OracleSettings(start="picture"), HORIZONS)
+    with pytest.raises(ValueError, match="only the oracle starting from the twin's picture can be given"):
+        OracleSettings(reveal=frozenset({"chases"}))
+    with pytest.raises(ValueError, match=r"cannot be given the simulator's minds \(it can be given: chases, lateral\)"):
+        OracleSettings(start="picture", reveal=frozenset({"minds"}))
+    with pytest.raises(ValueError, match="chases cannot be both hidden and given"):
+        OracleSettings(start="picture", hide=frozenset({"chases"}), reveal=frozenset({"chases"}))
+
+
+def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
+    """``--oracle-reveal``: the picture's chases are the simulator's chase state (no detector is loaded), its lateral
+    positions, lateral speeds and moves the simulator's; the rest stays the twin's."""
+    from dt_highway.config import load_config
+    from dt_highway.env import DTHighwayEnv
+    from dt_highway.evaluation.intent import _picture
+    from dt_highway.twin.tagger import HighwayMap
+    from dt_highway.world.traffic import vehicle_id
+
+    assert Oracle(OracleSettings(start="picture", reveal=frozenset({"chases"})), HORIZONS, TrafficConfig(),
+                  HighwayMap(4.0, 3)).chase is None
+    cfg = load_config(None, ["highway.vehicles_count=10", "highway.duration=3", "twin.preroll_s=8",
+                             "traffic.population_size=40"])
+    env = DTHighwayEnv(config=cfg.to_dict())
+    env.reset(seed=3)
+    env.step(1)
+    twin = env.twin
+    assert twin is not None and twin.intent_table is not None
+    plain = _picture(env, twin.intent_table, None)
+    on_road = {vehicle_id(v): v for v in env.road.vehicles}
+    ids = [i for i in plain.vehicle_ids.tolist() if i in on_road and i != 0]
+    chaser, mover = on_road[ids[0]], on_road[ids[1]]
+    chaser.cut_in = chaser.cut_in or type("Attempt", (), {})()
+    chaser.cut_in.desired_speed_mps = 20.0  # an open attempt chasing the ego, as the world sets it
+    mover.target_lane_index = ("0", "1", int(mover.lane_index[2]) + (1 if mover.lane_index[2] == 0 else -1))
+    given = _picture(env, twin.intent_table, None, frozenset({"chases", "lateral"}))
+    env.close()
+    assert given.p_chase is not None and given.p_move is not None and plain.p_move is not None
+    k = {vid: i for i, vid in enumerate(given.vehicle_ids.tolist())}
+    assert given.p_chase[k[ids[0]]] == 1.0 and given.p_chase.sum() >= 1.0
+    assert all(given.p_chase[k[vid]] == float(getattr(getattr(on_road[vid], "cut_in", None), "desired_speed_mps", None)
+                                              is not None) for vid in ids)
+    side = int(mover.target_lane_index[2]) - int(mover.lane_index[2])
+    assert list(given.p_move[k[ids[1]]]) == [float(side < 0), float(side > 0)]
+    for vid in ids:
+        v = on_road[vid]
+        assert given.y_m[k[vid]] == float(v.position[1])
+        assert given.lateral_speed_mps[k[vid]] == pytest.approx(float(v.speed) * math.sin(float(v.heading)))
+    assert not np.array_equal(given.y_m, plain.y_m)  # the fixes' lateral positions carry their noise
+    assert np.array_equal(given.x_m, plain.x_m) and np.array_equal(given.p_aggressive, plain.p_aggressive)
 
 
 def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_model(capsys):
@@ -367,3 +415,16 @@ def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_mode
     assert "--oracle-hide chases goes with --oracle-from picture" in capsys.readouterr().err
     assert main(["twin-eval", "--oracle-from", "picture", "--quiet", *TINY]) == 2
     assert "--oracle-from goes with --intent" in capsys.readouterr().err
+    assert main([*args, "--oracle-reveal", "chases,lateral", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["oracle"]["reveal"] == ["chases", "lateral"]
+    assert main([*args, "--oracle-reveal", "chases"]) == 0
+    assert "the twin's picture with the simulator's chases of the ego simulated" in capsys.readouterr().out
+    assert main([*args[:6], "--oracle-reveal", "chases", "--quiet", *TINY]) == 2
+    assert "--oracle-reveal goes with --oracle-from picture" in capsys.readouterr().err
+    assert main([*args, "--oracle-reveal", "chases", "--oracle-hide", "chases"]) == 2
+    assert "--oracle-hide and --oracle-reveal both name chases: choose one" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*args, "--oracle-reveal", "minds"])
+    assert "--oracle-reveal takes a comma-separated list of chases, lateral (got 'minds')" in capsys.readouterr().err
+    assert main(["twin-eval", "--oracle-reveal", "chases", "--quiet", *TINY]) == 2
+    assert "--oracle-reveal goes with --intent" in capsys.readouterr().err

@@ -177,9 +177,9 @@ class _Recorder:
             if self.chase is not None:
                 self.chase.append(_chase_sample(env))
             if self.oracle is not None:
-                chase = self.oracle.chase
+                chase, reveal = self.oracle.chase, self.oracle.settings.reveal
                 picture = None if self.oracle.settings.start != "picture" else (
-                    lambda: _picture(env, table, chase))  # made only when the oracle runs (every period_s)
+                    lambda: _picture(env, table, chase, reveal))  # made only when the oracle runs (every period_s)
                 self.oracle_probs.append(self.oracle.estimate(env.road, t, 1.0 / env.config["simulation_frequency"],
                                                               table.inputs.vehicle_ids, table.inputs.lane, picture))
         view = env.twin_view
@@ -220,25 +220,53 @@ def _chase_inputs(env: DTHighwayEnv) -> ChaseInputs:
     return chase_inputs(twin.store, twin.tagger.records, twin.road, twin.now_s, EGO_ID, twin.config.tagger.prior_aggressive)
 
 
-def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None) -> TwinPicture:
+def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None,
+             reveal: frozenset[str] = frozenset()) -> TwinPicture:
     """The twin's picture of now, with its moves (from ``table``) and, given a detector, who it thinks is chasing
-    the ego."""
+    the ego; what ``reveal`` names is the simulator's instead (:data:`~.intent_oracle.PICTURE_REVEALABLE`)."""
     twin = _twin(env)
     picture = twin_picture(twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
     picture = picture.with_moves(table)
-    if chase is not None:
+    if "chases" in reveal:
+        picture = picture.with_chases(picture.vehicle_ids, _chasing(env, picture.vehicle_ids).astype(float))
+    elif chase is not None:
         inputs = _chase_inputs(env)
         picture = picture.with_chases(inputs.vehicle_ids, chase.predict(inputs))
+    if "lateral" in reveal:
+        picture = _true_lateral(env, picture)
     return picture
+
+
+def _chasing(env: DTHighwayEnv, vehicle_ids: np.ndarray) -> np.ndarray:
+    """Whether each driver of ``vehicle_ids`` is chasing the ego in the simulator (its open cut-in attempt has set a
+    speed to reach the window just ahead of the ego), ``(N,)`` bool."""
+    chasing = {vehicle_id(v): getattr(getattr(v, "cut_in", None), "desired_speed_mps", None) is not None
+               for v in env.road.vehicles}
+    return np.array([chasing.get(int(i), False) for i in np.asarray(vehicle_ids).tolist()], dtype=bool)
+
+
+def _true_lateral(env: DTHighwayEnv, picture: TwinPicture) -> TwinPicture:
+    """``picture`` with the simulator's lateral position and lateral speed of each vehicle, and as its move the side
+    of the lane it is steering to (a vehicle no longer on the road keeps the twin's)."""
+    on_road = {vehicle_id(v): v for v in env.road.vehicles}
+    y, vlat = picture.y_m.copy(), picture.lateral_speed_mps.copy()
+    p_move = np.zeros((len(picture), 2)) if picture.p_move is None else picture.p_move.copy()
+    for i, vid in enumerate(picture.vehicle_ids.tolist()):
+        v = on_road.get(int(vid))
+        if v is None:
+            continue
+        y[i] = float(v.position[1])
+        vlat[i] = float(v.speed) * math.sin(float(v.heading))
+        side = int(v.target_lane_index[2]) - int(v.lane_index[2])
+        p_move[i] = (float(side < 0), float(side > 0))
+    return replace(picture, y_m=y, lateral_speed_mps=vlat, p_move=p_move)
 
 
 def _chase_sample(env: DTHighwayEnv) -> tuple[ChaseInputs, np.ndarray]:
     """The chase detector's inputs now and their labels: whether each driver was chasing the ego in the simulator
     (its open cut-in attempt has set a speed to reach the window ahead of the ego)."""
     inputs = _chase_inputs(env)
-    chasing = {vehicle_id(v): getattr(getattr(v, "cut_in", None), "desired_speed_mps", None) is not None
-               for v in env.road.vehicles}
-    return inputs, np.array([chasing.get(int(i), False) for i in inputs.vehicle_ids], dtype=bool)
+    return inputs, _chasing(env, inputs.vehicle_ids)
 
 
 class RecordingEnv(DTHighwayEnv):
@@ -889,11 +917,17 @@ def format_intent(result: dict[str, Any]) -> list[str]:
     return lines
 
 
+REVEALED = {"chases": "chases of the ego", "lateral": "lateral states"}
+"""How the text output names what ``--oracle-reveal`` gives the picture oracle"""
+
+
 def _oracle_settings(oracle: OracleSettings) -> dict[str, Any]:
-    """The oracle's settings in the result (``hide`` only when it hides something)."""
+    """The oracle's settings in the result (``hide`` and ``reveal`` only when they name something)."""
     out: dict[str, Any] = {"rollouts": oracle.rollouts, "period_s": oracle.period_s}
     if oracle.hide:
         out["hide"] = sorted(oracle.hide)
+    if oracle.reveal:
+        out["reveal"] = sorted(oracle.reveal)
     if oracle.start != "state":
         out["start"] = oracle.start
     return out
@@ -903,9 +937,13 @@ def _model_note(result: dict[str, Any], name: str) -> str:
     if name == result["configured_model"]:
         return " (configured)"
     if name == ORACLE and result.get("oracle", {}).get("start") == "picture":
-        chases = " and its chase detector's verdicts" if "chases" not in result["oracle"].get("hide", []) else ""
-        return (f" (the twin's picture{chases} simulated with the simulator's driver models, {result['oracle']['rollouts']} "
-                "futures per estimate: a twin with a perfect traffic model and the cloud's data)")
+        given = result["oracle"].get("reveal", [])
+        chases = (" and its chase detector's verdicts" if "chases" not in result["oracle"].get("hide", []) + given
+                  else "")
+        truth = f" with the simulator's {' and '.join(REVEALED[n] for n in given)}" if given else ""
+        return (f" (the twin's picture{chases}{truth} simulated with the simulator's driver models, "
+                f"{result['oracle']['rollouts']} futures per estimate: a twin with a perfect traffic model and the "
+                f"cloud's data{' and that truth' if given else ''})")
     if name.endswith(f"+{ORACLE}"):
         return " (the mean of the two estimates)"
     if name == ORACLE and result.get("oracle"):

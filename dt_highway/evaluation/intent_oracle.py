@@ -50,6 +50,17 @@ cut-in attempt open on the ego is drawn per copy from the twin's chase detector 
 :class:`~dt_highway.twin.chase.ChaseDetector`: the driver is aggressive and chasing with that probability, and its
 attempt is then open from the start of the copy); ``hide = {"chases"}`` leaves it out (every attempt a fresh draw).
 The copies share the picture and differ in what the cloud does not know.
+
+**Parts of the truth put back into the picture** (``OracleSettings.reveal``, starting from the picture only): to
+measure what a better twin could gain, the picture can take parts of the simulator's state instead of the twin's
+estimates of them:
+
+* ``chases``: who is chasing the ego is the simulator's chase state (``p_chase`` 1 for a driver whose open attempt
+  has set its speed to reach the window just ahead of the ego, else 0), as a chase detector without fault would have
+  it;
+* ``lateral``: every vehicle's lateral position and lateral speed are the simulator's, and whether it is moving to
+  a neighbouring lane (``p_move``) is the lane it is steering to, as a twin that read the lateral state exactly
+  would have them.
 """
 
 from __future__ import annotations
@@ -79,6 +90,9 @@ HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
 """What the oracle starting from the simulator's state can be denied (see the module docstring)"""
 PICTURE_HIDEABLE = ("chases",)
 """What the oracle starting from the twin's picture can be denied: the twin's estimate of who is chasing the ego"""
+PICTURE_REVEALABLE = ("chases", "lateral")
+"""What of the simulator's state the oracle starting from the twin's picture can be given instead of the twin's
+estimate (see the module docstring)"""
 STARTS = ("state", "picture")
 """What the copies start from: the simulator's state, or the twin's picture (see the module docstring)"""
 MOVING_OFFSET_M = 0.5
@@ -99,6 +113,8 @@ class OracleSettings:
     :param sigma_position_m: with ``positions`` hidden, the error of a vehicle's position along the road [m]
     :param sigma_speed_mps: with ``positions`` hidden, the error of its speed [m/s]
     :param start: what the copies start from: ``"state"`` (the simulator's) or ``"picture"`` (the twin's)
+    :param reveal: starting from the picture, the parts of the simulator's state put into it instead of the twin's
+        estimates (names of :data:`PICTURE_REVEALABLE`)
     """
 
     rollouts: int = 8
@@ -108,6 +124,7 @@ class OracleSettings:
     sigma_position_m: float = 1.0
     sigma_speed_mps: float = 0.2
     start: Literal["state", "picture"] = "state"
+    reveal: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
         if self.rollouts < 1:
@@ -119,6 +136,16 @@ class OracleSettings:
         if unknown:
             raise ValueError(f"the oracle starting from the {'twin' if self.start == 'picture' else 'simulator'}'s "
                              f"{self.start} cannot hide {', '.join(unknown)} (it can hide: {', '.join(allowed)})")
+        if self.reveal and self.start != "picture":
+            raise ValueError("only the oracle starting from the twin's picture can be given parts of the simulator's "
+                             f"state (it starts from the {self.start}; it already has all of it)")
+        unknown = sorted(set(self.reveal) - set(PICTURE_REVEALABLE))
+        if unknown:
+            raise ValueError(f"the picture cannot be given the simulator's {', '.join(unknown)} "
+                             f"(it can be given: {', '.join(PICTURE_REVEALABLE)})")
+        both = sorted(set(self.reveal) & set(self.hide))
+        if both:
+            raise ValueError(f"{', '.join(both)} cannot be both hidden and given to the oracle")
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
@@ -336,8 +363,8 @@ class Oracle:
         self.road_map = road_map
         self.chase: ChaseDetector | None = None
         """The twin's chase detector the picture's ``p_chase`` comes from (``None``: starting from the state, or
-        ``chases`` hidden)"""
-        if settings.start == "picture" and "chases" not in settings.hide:
+        ``chases`` hidden or given)"""
+        if settings.start == "picture" and "chases" not in settings.hide | settings.reveal:
             self.chase = ChaseDetector.load()
         self.rng = np.random.default_rng(settings.seed)
         self._last_t = -math.inf
