@@ -17,7 +17,7 @@ from dt_highway.evaluation.intent_oracle import (
     rollout_changes,
 )
 from dt_highway.labels import AGGRESSIVE
-from dt_highway.world.traffic import DriverPopulation, TrafficManager
+from dt_highway.world.traffic import DriverPopulation, TrafficManager, cut_in_policy
 
 DT = 1.0 / 15
 HORIZONS = (1.0, 2.0, 3.0)
@@ -371,7 +371,8 @@ def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
     on_road = {vehicle_id(v): v for v in env.road.vehicles}
     ids = [i for i in plain.vehicle_ids.tolist() if i in on_road and i != 0]
     chaser, mover = on_road[ids[0]], on_road[ids[1]]
-    chaser.cut_in = chaser.cut_in or type("Attempt", (), {})()
+    if chaser.cut_in is None:  # a normal driver here: give it an aggressive driver's cut-in policy
+        chaser.cut_in = cut_in_policy(TrafficConfig(), 4.0, np.random.default_rng(0))
     chaser.cut_in.desired_speed_mps = 20.0  # an open attempt chasing the ego, as the world sets it
     mover.target_lane_index = ("0", "1", int(mover.lane_index[2]) + (1 if mover.lane_index[2] == 0 else -1))
     given = _picture(env, twin.intent_table, None, frozenset({"chases", "lateral"}))
@@ -379,8 +380,8 @@ def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
     assert given.p_chase is not None and given.p_move is not None and plain.p_move is not None
     k = {vid: i for i, vid in enumerate(given.vehicle_ids.tolist())}
     assert given.p_chase[k[ids[0]]] == 1.0 and given.p_chase.sum() >= 1.0
-    assert all(given.p_chase[k[vid]] == float(getattr(getattr(on_road[vid], "cut_in", None), "desired_speed_mps", None)
-                                              is not None) for vid in ids)
+    assert all(given.p_chase[k[vid]] == float(getattr(on_road[vid], "cut_in", None) is not None
+                                              and on_road[vid].cut_in.desired_speed_mps is not None) for vid in ids)
     side = int(mover.target_lane_index[2]) - int(mover.lane_index[2])
     assert list(given.p_move[k[ids[1]]]) == [float(side < 0), float(side > 0)]
     for vid in ids:

@@ -65,7 +65,7 @@ from dt_highway.twin.intention import (
     make_model,
     twin_picture,
 )
-from dt_highway.world.traffic import EGO_ID, vehicle_id
+from dt_highway.world.traffic import EGO_ID, CutInPolicy, vehicle_id
 
 MERGE_S = 1.0
 """Warnings of one car this close in time are one warning run [s]"""
@@ -240,9 +240,9 @@ def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None,
 def _chasing(env: DTHighwayEnv, vehicle_ids: np.ndarray) -> np.ndarray:
     """Whether each driver of ``vehicle_ids`` is chasing the ego in the simulator (its open cut-in attempt has set a
     speed to reach the window just ahead of the ego), ``(N,)`` bool."""
-    chasing = {vehicle_id(v): getattr(getattr(v, "cut_in", None), "desired_speed_mps", None) is not None
-               for v in env.road.vehicles}
-    return np.array([chasing.get(int(i), False) for i in np.asarray(vehicle_ids).tolist()], dtype=bool)
+    chasing = {vehicle_id(v) for v in env.road.vehicles
+               if isinstance(policy := getattr(v, "cut_in", None), CutInPolicy) and policy.chasing_ego}
+    return np.array([int(i) in chasing for i in np.asarray(vehicle_ids).tolist()], dtype=bool)
 
 
 def _true_lateral(env: DTHighwayEnv, picture: TwinPicture) -> TwinPicture:

@@ -186,7 +186,7 @@ def _hide(v: TypedDriverVehicle, settings: OracleSettings, rng: np.random.Genera
     if "positions" in settings.hide:
         v.position[0] += settings.sigma_position_m * float(rng.standard_normal())
         v.speed = float(v.speed) + settings.sigma_speed_mps * float(rng.standard_normal())
-    chasing = policy is not None and policy.desired_speed_mps is not None  # the cloud sees it match the ego's speed
+    chasing = policy is not None and policy.chasing_ego  # the cloud sees it match the ego's speed
     unseen = "attempts" in settings.hide or ("unseen_attempts" in settings.hide and not chasing)
     if unseen and policy is not None and policy.brake is None:
         if policy.desired_speed_mps is not None:  # chasing the ego: back to its own speed

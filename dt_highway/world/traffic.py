@@ -300,6 +300,12 @@ class CutInPolicy:
                 self.dangerous = bool(self.rng.random() < self.dangerous_share)
 
     @property
+    def chasing_ego(self) -> bool:
+        """Whether the open attempt has set the driver's speed to reach the cut-in window just ahead of the ego
+        (the *chase*, which the cloud can see in the driver's speed)."""
+        return self.desired_speed_mps is not None
+
+    @property
     def gap_window_m(self) -> tuple[float, float]:
         """The bumper gap ahead of the victim that the open attempt accepts [m]."""
         return self.dangerous_gap_m if self.dangerous else self.gap_m
