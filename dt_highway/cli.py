@@ -1057,7 +1057,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--oracle-reveal", type=_oracle_reveal, default=frozenset(), metavar="LIST",
                    help="with --oracle-from picture: put these parts of the simulator's state into the twin's picture "
                    f"instead of its estimates, comma-separated: {', '.join(PICTURE_REVEALABLE)} (who chases the ego; "
-                   "every car's lateral position, speed and the lane it steers to): what a better twin could gain")
+                   "every car's lateral position, speed and the lane it steers to; every driver's type; every car's "
+                   "position along the road and speed; every open cut-in attempt, which gives the chases too): what "
+                   "a better twin could gain")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", help="also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -306,6 +306,50 @@ def test_a_driver_the_twin_judges_chasing_the_ego_has_its_attempt_open_in_the_co
     assert 0.4 < share < 0.6 and all(c is None or c.next_attempt_s == 0.0 for c in opened)  # chasing = aggressive here
 
 
+def test_the_simulators_open_attempt_goes_into_a_picture_copy_as_it_is():
+    """``reveal`` ``attempts``: a driver with an open attempt is aggressive in every copy, its attempt open for as long
+    as it has been (so it weaves when its patience runs out) and of its style; a near miss's brake under way and the
+    lane kept after it carry over, in times from now; a driver without one draws as before."""
+    from dataclasses import fields
+
+    from dt_highway.evaluation.intent_oracle import OpenAttempt, RevealedPicture, picture_road
+    from dt_highway.twin.tagger import HighwayMap
+    from dt_highway.world.traffic import BrakePlan
+
+    policy = cut_in_policy(TrafficConfig(), 4.0, np.random.default_rng(0))
+    policy.next_attempt_s = 12.0
+    assert OpenAttempt.of(policy, clock_s=10.0) is None  # not open yet: a fresh draw gives the same
+    policy.dangerous = True
+    attempt = OpenAttempt.of(policy, clock_s=14.5)
+    assert attempt == OpenAttempt(True, 2.5)
+    policy.next_attempt_s, policy.committed_until_s = 30.0, 16.0
+    policy.brake = BrakePlan(("0", "1", 1), 13.0, 20.0)
+    braking = OpenAttempt.of(policy, clock_s=14.5)
+    assert braking == OpenAttempt(True, None, BrakePlan(("0", "1", 1), -1.5, 20.0), 1.5)
+
+    network = RoadNetwork.straight_road_network(3, speed_limit=30)
+    picture = _picture([(7, 230.0, 0.0, 26.0, 0.0, 0.0), (8, 180.0, 0.0, 24.0, 0.0, 0.0), (9, 150.0, 8.0, 28.0, 0.0, 0.0)])
+    given = RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)},
+                            attempts={7: attempt, 9: braking})
+    for seed in range(5):
+        by_id = {v.dt_id: v for v in picture_road(network, given, HighwayMap(4.0, 3), TrafficConfig(),
+                                                 np.random.default_rng(seed)).vehicles}
+        open_7, braking_9 = by_id[7].cut_in, by_id[9].cut_in
+        assert open_7 is not None and open_7.next_attempt_s == -2.5 and open_7.dangerous  # tagged normal: 0
+        assert open_7.brake is None and open_7.committed_until_s == 0.0
+        assert braking_9 is not None and braking_9.brake == BrakePlan(("0", "1", 1), -1.5, 20.0)
+        assert braking_9.committed_until_s == 1.5 and braking_9.next_attempt_s > 0.0  # the next one: a fresh draw,
+        assert not braking_9.dangerous  # its style too (no near misses in these settings)
+        assert by_id[8].cut_in is None
+    # a driver chasing for longer than its patience gives up at once and weaves (here: into the empty lane 1)
+    weaver = picture_road(network, RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)},
+                                                   attempts={8: OpenAttempt(False, 60.0)}),
+                          HighwayMap(4.0, 3), TrafficConfig(), np.random.default_rng(0))
+    car = next(v for v in weaver.vehicles if v.dt_id == 8)
+    car.act()
+    assert car.target_lane_index[2] == 1 and car.cut_in is not None and car.cut_in.next_attempt_s > 0.0
+
+
 def test_the_picture_oracle_carries_the_twins_chase_detector_unless_hidden():
     from dt_highway.twin.tagger import HighwayMap
 
@@ -343,23 +387,29 @@ def test_picture_settings_are_checked():
         Oracle(OracleSettings(start="picture"), HORIZONS)
     with pytest.raises(ValueError, match="only the oracle starting from the twin's picture can be given"):
         OracleSettings(reveal=frozenset({"chases"}))
-    with pytest.raises(ValueError, match=r"cannot be given the simulator's minds \(it can be given: chases, lateral\)"):
+    with pytest.raises(ValueError, match=r"cannot be given the simulator's minds \(it can be given: chases, lateral, types, "
+                                         r"positions, attempts\)"):
         OracleSettings(start="picture", reveal=frozenset({"minds"}))
     with pytest.raises(ValueError, match="chases cannot be both hidden and given"):
         OracleSettings(start="picture", hide=frozenset({"chases"}), reveal=frozenset({"chases"}))
+    with pytest.raises(ValueError, match="attempts cannot be given with chases hidden"):
+        OracleSettings(start="picture", hide=frozenset({"chases"}), reveal=frozenset({"attempts"}))
 
 
-def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
+def test_a_picture_given_parts_of_the_simulators_state_has_them():
     """``--oracle-reveal``: the picture's chases are the simulator's chase state (no detector is loaded), its lateral
-    positions, lateral speeds and moves the simulator's; the rest stays the twin's."""
+    positions, lateral speeds and moves the simulator's; so are the types, the positions along the road and speeds,
+    and the open attempts when given; the rest stays the twin's."""
     from dt_highway.config import load_config
     from dt_highway.env import DTHighwayEnv
     from dt_highway.evaluation.intent import _picture
+    from dt_highway.evaluation.intent_oracle import OpenAttempt
     from dt_highway.twin.tagger import HighwayMap
-    from dt_highway.world.traffic import vehicle_id
+    from dt_highway.world.traffic import driver_type, vehicle_id
 
-    assert Oracle(OracleSettings(start="picture", reveal=frozenset({"chases"})), HORIZONS, TrafficConfig(),
-                  HighwayMap(4.0, 3)).chase is None
+    for given in ("chases", "attempts"):
+        assert Oracle(OracleSettings(start="picture", reveal=frozenset({given})), HORIZONS, TrafficConfig(),
+                      HighwayMap(4.0, 3)).chase is None
     cfg = load_config(None, ["highway.vehicles_count=10", "highway.duration=3", "twin.preroll_s=8",
                              "traffic.population_size=40"])
     env = DTHighwayEnv(config=cfg.to_dict())
@@ -376,6 +426,9 @@ def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
     chaser.cut_in.desired_speed_mps = 20.0  # an open attempt chasing the ego, as the world sets it
     mover.target_lane_index = ("0", "1", int(mover.lane_index[2]) + (1 if mover.lane_index[2] == 0 else -1))
     given = _picture(env, twin.intent_table, None, frozenset({"chases", "lateral"}))
+    everything = _picture(env, twin.intent_table, None, frozenset({"attempts", "types", "positions"}))
+    chaser.cut_in.next_attempt_s = chaser.clock_s - 1.0  # open for 1 s
+    attempts = _picture(env, twin.intent_table, None, frozenset({"attempts"})).attempts
     env.close()
     assert given.p_chase is not None and given.p_move is not None and plain.p_move is not None
     k = {vid: i for i, vid in enumerate(given.vehicle_ids.tolist())}
@@ -390,6 +443,18 @@ def test_a_picture_given_the_simulators_chases_and_lateral_states_has_them():
         assert given.lateral_speed_mps[k[vid]] == pytest.approx(float(v.speed) * math.sin(float(v.heading)))
     assert not np.array_equal(given.y_m, plain.y_m)  # the fixes' lateral positions carry their noise
     assert np.array_equal(given.x_m, plain.x_m) and np.array_equal(given.p_aggressive, plain.p_aggressive)
+    # types, positions and open attempts (which give the chases too); the lateral states stay the twin's
+    assert everything.p_chase is not None and np.array_equal(everything.p_chase, given.p_chase)
+    assert np.array_equal(everything.y_m, plain.y_m)
+    for vid in ids:
+        v = on_road[vid]
+        assert everything.p_aggressive[k[vid]] == float(driver_type(v) == AGGRESSIVE)
+        assert (everything.x_m[k[vid]], everything.speed_mps[k[vid]]) == (float(v.position[0]), float(v.speed))
+    assert not np.array_equal(everything.x_m, plain.x_m) and not np.array_equal(everything.p_aggressive,
+                                                                                plain.p_aggressive)
+    assert attempts[ids[0]] == OpenAttempt(chaser.cut_in.dangerous, pytest.approx(1.0))
+    assert all(OpenAttempt.of(on_road[vid].cut_in, on_road[vid].clock_s) == a for vid, a in attempts.items()
+               if vid != ids[0])
 
 
 def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_model(capsys):
@@ -426,6 +491,7 @@ def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_mode
     assert "--oracle-hide and --oracle-reveal both name chases: choose one" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([*args, "--oracle-reveal", "minds"])
-    assert "--oracle-reveal takes a comma-separated list of chases, lateral (got 'minds')" in capsys.readouterr().err
+    assert ("--oracle-reveal takes a comma-separated list of chases, lateral, types, positions, attempts (got 'minds')"
+            in capsys.readouterr().err)
     assert main(["twin-eval", "--oracle-reveal", "chases", "--quiet", *TINY]) == 2
     assert "--oracle-reveal goes with --intent" in capsys.readouterr().err

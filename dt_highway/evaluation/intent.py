@@ -42,18 +42,20 @@ the env ran; another is evaluated as if it had run (same estimates' inputs, same
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
+from highway_env.vehicle.kinematics import Vehicle
 
 from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
 from dt_highway.drivers import Driver
 from dt_highway.env import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
-from dt_highway.evaluation.intent_oracle import Oracle, OracleSettings
+from dt_highway.evaluation.intent_oracle import OpenAttempt, Oracle, OracleSettings, RevealedPicture
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
+from dt_highway.labels import AGGRESSIVE
 from dt_highway.twin.chase import ChaseDetector, ChaseInputs, chase_inputs
 from dt_highway.twin.cloud import CloudTwin
 from dt_highway.twin.intention import (
@@ -65,7 +67,7 @@ from dt_highway.twin.intention import (
     make_model,
     twin_picture,
 )
-from dt_highway.world.traffic import EGO_ID, CutInPolicy, vehicle_id
+from dt_highway.world.traffic import EGO_ID, CutInPolicy, driver_type, vehicle_id
 
 MERGE_S = 1.0
 """Warnings of one car this close in time are one warning run [s]"""
@@ -227,14 +229,37 @@ def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None,
     twin = _twin(env)
     picture = twin_picture(twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
     picture = picture.with_moves(table)
-    if "chases" in reveal:
+    if {"chases", "attempts"} & reveal:
         picture = picture.with_chases(picture.vehicle_ids, _chasing(env, picture.vehicle_ids).astype(float))
     elif chase is not None:
         inputs = _chase_inputs(env)
         picture = picture.with_chases(inputs.vehicle_ids, chase.predict(inputs))
+    on_road = {vehicle_id(v): v for v in env.road.vehicles}
     if "lateral" in reveal:
-        picture = _true_lateral(env, picture)
+        picture = _true_lateral(on_road, picture)
+    if "types" in reveal:
+        p_aggressive = picture.p_aggressive.copy()
+        for i, v in _pictured(on_road, picture):
+            p_aggressive[i] = float(driver_type(v) == AGGRESSIVE)
+        picture = replace(picture, p_aggressive=p_aggressive)
+    if "positions" in reveal:
+        x, speed = picture.x_m.copy(), picture.speed_mps.copy()
+        for i, v in _pictured(on_road, picture):
+            x[i], speed[i] = float(v.position[0]), float(v.speed)
+        picture = replace(picture, x_m=x, speed_mps=speed)
+    if "attempts" in reveal:
+        attempts = {vid: a for vid, v in on_road.items() if isinstance(policy := getattr(v, "cut_in", None), CutInPolicy)
+                    and (a := OpenAttempt.of(policy, v.clock_s)) is not None}
+        picture = RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)}, attempts=attempts)
     return picture
+
+
+def _pictured(on_road: dict[int, Vehicle], picture: TwinPicture) -> Iterator[tuple[int, Vehicle]]:
+    """Each pictured vehicle still on the road: its index in ``picture`` and the simulator's vehicle."""
+    for i, vid in enumerate(picture.vehicle_ids.tolist()):
+        v = on_road.get(int(vid))
+        if v is not None:
+            yield i, v
 
 
 def _chasing(env: DTHighwayEnv, vehicle_ids: np.ndarray) -> np.ndarray:
@@ -245,16 +270,12 @@ def _chasing(env: DTHighwayEnv, vehicle_ids: np.ndarray) -> np.ndarray:
     return np.array([int(i) in chasing for i in np.asarray(vehicle_ids).tolist()], dtype=bool)
 
 
-def _true_lateral(env: DTHighwayEnv, picture: TwinPicture) -> TwinPicture:
+def _true_lateral(on_road: dict[int, Vehicle], picture: TwinPicture) -> TwinPicture:
     """``picture`` with the simulator's lateral position and lateral speed of each vehicle, and as its move the side
     of the lane it is steering to (a vehicle no longer on the road keeps the twin's)."""
-    on_road = {vehicle_id(v): v for v in env.road.vehicles}
     y, vlat = picture.y_m.copy(), picture.lateral_speed_mps.copy()
     p_move = np.zeros((len(picture), 2)) if picture.p_move is None else picture.p_move.copy()
-    for i, vid in enumerate(picture.vehicle_ids.tolist()):
-        v = on_road.get(int(vid))
-        if v is None:
-            continue
+    for i, v in _pictured(on_road, picture):
         y[i] = float(v.position[1])
         vlat[i] = float(v.speed) * math.sin(float(v.heading))
         side = int(v.target_lane_index[2]) - int(v.lane_index[2])
@@ -917,7 +938,8 @@ def format_intent(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-REVEALED = {"chases": "chases of the ego", "lateral": "lateral states"}
+REVEALED = {"chases": "chases of the ego", "lateral": "lateral states", "types": "driver types",
+            "positions": "positions and speeds", "attempts": "open cut-in attempts"}
 """How the text output names what ``--oracle-reveal`` gives the picture oracle"""
 
 
@@ -938,8 +960,8 @@ def _model_note(result: dict[str, Any], name: str) -> str:
         return " (configured)"
     if name == ORACLE and result.get("oracle", {}).get("start") == "picture":
         given = result["oracle"].get("reveal", [])
-        chases = (" and its chase detector's verdicts" if "chases" not in result["oracle"].get("hide", []) + given
-                  else "")
+        chases = (" and its chase detector's verdicts"
+                  if not {"chases", "attempts"} & {*result["oracle"].get("hide", []), *given} else "")
         truth = f" with the simulator's {' and '.join(REVEALED[n] for n in given)}" if given else ""
         return (f" (the twin's picture{chases}{truth} simulated with the simulator's driver models, "
                 f"{result['oracle']['rollouts']} futures per estimate: a twin with a perfect traffic model and the "

@@ -60,28 +60,35 @@ estimates of them:
   it;
 * ``lateral``: every vehicle's lateral position and lateral speed are the simulator's, and whether it is moving to
   a neighbouring lane (``p_move``) is the lane it is steering to, as a twin that read the lateral state exactly
-  would have them.
+  would have them;
+* ``types``: every driver's type is the simulator's (``p_aggressive`` 1 or 0), as a tagger without fault would have
+  it (the copies still give a driver its type's presets, with its present speed as its desired speed);
+* ``positions``: every vehicle's position along the road and speed are the simulator's, without the fixes' noise;
+* ``attempts``: every open cut-in attempt is the simulator's (:class:`OpenAttempt`: how long it has been open, so
+  when the driver gives up and weaves; its style, near miss or not; a near miss's brake under way and the lane kept
+  after it), its driver aggressive in every copy; this gives the chases too (a driver without an open attempt
+  chases no one). A copy still draws every attempt not yet open, as the state's oracle does.
 """
 
 from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from highway_env.road.road import Road, RoadNetwork
 
 from dt_highway.twin.chase import ChaseDetector
+from dt_highway.twin.intention import TwinPicture
 from dt_highway.world.continuum import DriverProfile
 from dt_highway.world.road import FastRoad
-from dt_highway.world.traffic import EGO_ID, CutInPolicy, TypedDriverVehicle, cut_in_policy, vehicle_id
+from dt_highway.world.traffic import EGO_ID, BrakePlan, CutInPolicy, TypedDriverVehicle, cut_in_policy, vehicle_id
 
 if TYPE_CHECKING:
     from dt_highway.config import TrafficConfig
-    from dt_highway.twin.intention import TwinPicture
     from dt_highway.twin.tagger import HighwayMap
 
 ORACLE_PERIOD_S = 0.2
@@ -90,7 +97,7 @@ HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
 """What the oracle starting from the simulator's state can be denied (see the module docstring)"""
 PICTURE_HIDEABLE = ("chases",)
 """What the oracle starting from the twin's picture can be denied: the twin's estimate of who is chasing the ego"""
-PICTURE_REVEALABLE = ("chases", "lateral")
+PICTURE_REVEALABLE = ("chases", "lateral", "types", "positions", "attempts")
 """What of the simulator's state the oracle starting from the twin's picture can be given instead of the twin's
 estimate (see the module docstring)"""
 STARTS = ("state", "picture")
@@ -146,6 +153,63 @@ class OracleSettings:
         both = sorted(set(self.reveal) & set(self.hide))
         if both:
             raise ValueError(f"{', '.join(both)} cannot be both hidden and given to the oracle")
+        if "attempts" in self.reveal and "chases" in self.hide:
+            raise ValueError("attempts cannot be given with chases hidden (the simulator's open attempts give its "
+                             "chases too)")
+
+    @property
+    def chases_given(self) -> bool:
+        """Whether the picture's chases are the simulator's (``chases`` or ``attempts`` given)."""
+        return bool({"chases", "attempts"} & self.reveal)
+
+
+@dataclass(frozen=True)
+class OpenAttempt:
+    """A driver's cut-in attempt as the simulator has it now (evaluation only: ``reveal`` ``attempts``), in times
+    from now.
+
+    :param dangerous: whether the open attempt is the paper's near miss (with none open: the next one's, not used)
+    :param open_for_s: how long it has been open [s] (its patience runs from then); ``None``: none open
+    :param brake: a near miss's brake under way, its ``start_s`` from now (negative: started before) [s]
+    :param committed_for_s: how much longer the driver keeps its lane after a near miss's brake [s]
+    """
+
+    dangerous: bool
+    open_for_s: float | None
+    brake: BrakePlan | None = None
+    committed_for_s: float = 0.0
+
+    @classmethod
+    def of(cls, policy: CutInPolicy, clock_s: float) -> OpenAttempt | None:
+        """:return: the attempt of ``policy`` at its driver's ``clock_s`` [s] (``None``: no attempt open, no brake
+        under way, no lane kept: nothing that a fresh draw would not give)"""
+        is_open = clock_s >= policy.next_attempt_s
+        if not is_open and policy.brake is None and policy.committed_until_s <= clock_s:
+            return None
+        brake = policy.brake
+        return cls(policy.dangerous, clock_s - policy.next_attempt_s if is_open else None,
+                   None if brake is None else BrakePlan(brake.lane_index, brake.start_s - clock_s,
+                                                        brake.target_speed_mps),
+                   max(policy.committed_until_s - clock_s, 0.0))
+
+    def apply(self, policy: CutInPolicy) -> None:
+        """Put this attempt into a copy's fresh ``policy`` (its driver's clock at 0, its next attempt drawn: kept,
+        style and all, when none is open)."""
+        if self.open_for_s is not None:
+            policy.dangerous = self.dangerous
+            policy.next_attempt_s = -self.open_for_s
+        policy.brake = self.brake
+        policy.committed_until_s = self.committed_for_s
+
+
+@dataclass(frozen=True)
+class RevealedPicture(TwinPicture):
+    """The twin's picture with the simulator's open cut-in attempts (evaluation only: ``reveal`` ``attempts``).
+
+    :param attempts: per vehicle id, its driver's :class:`OpenAttempt` (a vehicle not in it has none)
+    """
+
+    attempts: Mapping[int, OpenAttempt] = field(default_factory=dict)
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
@@ -289,6 +353,7 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
     road = FastRoad(network=network, vehicles=[], np_random=np.random.RandomState(int(rng.integers(2**31))),
                     record_history=False)
     lanes = np.clip(road_map.lane_of(picture.y_m), 0, road_map.n_lanes - 1).astype(int)
+    attempts = picture.attempts if isinstance(picture, RevealedPicture) else {}
     for i, vid in enumerate(picture.vehicle_ids.tolist()):
         x, y, speed, vlat = (float(a[i]) for a in (picture.x_m, picture.y_m, picture.speed_mps,
                                                     picture.lateral_speed_mps))
@@ -298,6 +363,8 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         side = _moving(picture, i, offset, vlat, rng)
         side = side if 0 <= lane + side < road_map.n_lanes else 0
         aggressive, chasing = _type(picture, i, vid != ego_id, rng)
+        attempt = attempts.get(vid)
+        aggressive = aggressive or attempt is not None
         params = traffic.aggressive if aggressive else traffic.normal
         profile = DriverProfile.from_preset(params, speed, traffic.cut_in_rate_per_min if aggressive else 0.0)
         lane_obj = road.network.get_lane(lane_index)
@@ -313,8 +380,10 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         elif aggressive:
             v.cut_in = cut_in_policy(traffic, profile.cut_in_rate_per_min, rng)
             v.cut_in.schedule(0.0)  # the next attempt: a fresh draw ...
-            if chasing:
-                v.cut_in.next_attempt_s = 0.0  # ... unless the twin judged it chasing the ego: open now
+            if attempt is not None:
+                attempt.apply(v.cut_in)  # ... or the simulator's open attempt (``reveal`` ``attempts``) ...
+            elif chasing:
+                v.cut_in.next_attempt_s = 0.0  # ... or, if the twin judged it chasing the ego, open now
         road.vehicles.append(v)
     return road
 
@@ -364,7 +433,7 @@ class Oracle:
         self.chase: ChaseDetector | None = None
         """The twin's chase detector the picture's ``p_chase`` comes from (``None``: starting from the state, or
         ``chases`` hidden or given)"""
-        if settings.start == "picture" and "chases" not in settings.hide | settings.reveal:
+        if settings.start == "picture" and "chases" not in settings.hide and not settings.chases_given:
             self.chase = ChaseDetector.load()
         self.rng = np.random.default_rng(settings.seed)
         self._last_t = -math.inf
