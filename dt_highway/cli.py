@@ -273,6 +273,8 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
     both = sorted(set(args.oracle_reveal) & set(args.oracle_hide))
     if both:
         raise ConfigError(f"--oracle-hide and --oracle-reveal both name {','.join(both)}: choose one")
+    if "attempts" in args.oracle_reveal and "chases" in args.oracle_hide:
+        raise ConfigError("--oracle-reveal attempts gives the chases too: it cannot go with --oracle-hide chases")
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)

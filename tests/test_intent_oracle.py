@@ -341,6 +341,10 @@ def test_the_simulators_open_attempt_goes_into_a_picture_copy_as_it_is():
         assert braking_9.committed_until_s == 1.5 and braking_9.next_attempt_s > 0.0  # the next one: a fresh draw,
         assert not braking_9.dangerous  # its style too (no near misses in these settings)
         assert by_id[8].cut_in is None
+    # the near miss under way steers to its victim's lane (lane 1; the twin sees car 9 in lane 2, keeping it) and
+    # keeps its brake plan, which starts once it is there
+    by_id[9].act()
+    assert by_id[9].target_lane_index[2] == 1 and by_id[9].cut_in.brake is not None
     # a driver chasing for longer than its patience gives up at once and weaves (here: into the empty lane 1)
     weaver = picture_road(network, RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)},
                                                    attempts={8: OpenAttempt(False, 60.0)}),
@@ -404,6 +408,7 @@ def test_a_picture_given_parts_of_the_simulators_state_has_them():
     from dt_highway.env import DTHighwayEnv
     from dt_highway.evaluation.intent import _picture
     from dt_highway.evaluation.intent_oracle import OpenAttempt
+    from dt_highway.twin.chase import ChaseDetector
     from dt_highway.twin.tagger import HighwayMap
     from dt_highway.world.traffic import driver_type, vehicle_id
 
@@ -427,6 +432,7 @@ def test_a_picture_given_parts_of_the_simulators_state_has_them():
     mover.target_lane_index = ("0", "1", int(mover.lane_index[2]) + (1 if mover.lane_index[2] == 0 else -1))
     given = _picture(env, twin.intent_table, None, frozenset({"chases", "lateral"}))
     everything = _picture(env, twin.intent_table, None, frozenset({"attempts", "types", "positions"}))
+    detected = _picture(env, twin.intent_table, ChaseDetector.load(), frozenset({"types"}))
     chaser.cut_in.next_attempt_s = chaser.clock_s - 1.0  # open for 1 s
     attempts = _picture(env, twin.intent_table, None, frozenset({"attempts"})).attempts
     env.close()
@@ -450,11 +456,17 @@ def test_a_picture_given_parts_of_the_simulators_state_has_them():
         v = on_road[vid]
         assert everything.p_aggressive[k[vid]] == float(driver_type(v) == AGGRESSIVE)
         assert (everything.x_m[k[vid]], everything.speed_mps[k[vid]]) == (float(v.position[0]), float(v.speed))
+    # with only the types given, the detector's verdicts stay
+    assert detected.p_chase is not None and np.array_equal(detected.p_aggressive, everything.p_aggressive)
+    assert detected.p_chase.max() > 0 and not np.array_equal(detected.p_chase, given.p_chase)
     assert not np.array_equal(everything.x_m, plain.x_m) and not np.array_equal(everything.p_aggressive,
                                                                                 plain.p_aggressive)
     assert attempts[ids[0]] == OpenAttempt(chaser.cut_in.dangerous, pytest.approx(1.0))
-    assert all(OpenAttempt.of(on_road[vid].cut_in, on_road[vid].clock_s) == a for vid, a in attempts.items()
-               if vid != ids[0])
+    in_play = {vid for vid, v in on_road.items() if getattr(v, "cut_in", None) is not None
+               and (v.clock_s >= v.cut_in.next_attempt_s or v.cut_in.brake is not None
+                    or v.cut_in.committed_until_s > v.clock_s)}
+    assert set(attempts) == in_play and len(in_play) < sum(getattr(v, "cut_in", None) is not None
+                                                           for v in on_road.values())  # the others: fresh draws
 
 
 def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_model(capsys):
@@ -485,10 +497,15 @@ def test_twin_eval_scores_the_oracle_from_the_picture_and_its_mean_with_the_mode
     assert json.loads(capsys.readouterr().out)["oracle"]["reveal"] == ["chases", "lateral"]
     assert main([*args, "--oracle-reveal", "chases"]) == 0
     assert "the twin's picture with the simulator's chases of the ego simulated" in capsys.readouterr().out
+    assert main([*args, "--oracle-reveal", "attempts,types"]) == 0
+    assert ("the twin's picture with the simulator's open cut-in attempts and driver types simulated"
+            in capsys.readouterr().out)
     assert main([*args[:6], "--oracle-reveal", "chases", "--quiet", *TINY]) == 2
     assert "--oracle-reveal goes with --oracle-from picture" in capsys.readouterr().err
     assert main([*args, "--oracle-reveal", "chases", "--oracle-hide", "chases"]) == 2
     assert "--oracle-hide and --oracle-reveal both name chases: choose one" in capsys.readouterr().err
+    assert main([*args, "--oracle-reveal", "attempts", "--oracle-hide", "chases"]) == 2
+    assert "--oracle-reveal attempts gives the chases too" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([*args, "--oracle-reveal", "minds"])
     assert ("--oracle-reveal takes a comma-separated list of chases, lateral, types, positions, attempts (got 'minds')"

@@ -61,13 +61,16 @@ estimates of them:
 * ``lateral``: every vehicle's lateral position and lateral speed are the simulator's, and whether it is moving to
   a neighbouring lane (``p_move``) is the lane it is steering to, as a twin that read the lateral state exactly
   would have them;
-* ``types``: every driver's type is the simulator's (``p_aggressive`` 1 or 0), as a tagger without fault would have
-  it (the copies still give a driver its type's presets, with its present speed as its desired speed);
+* ``types``: every driver's tagged type is the simulator's (``p_aggressive`` 1 or 0), as a tagger without fault
+  would have it; a driver judged chasing the ego (``p_chase``) is still aggressive in that share of the copies,
+  since the copies give cut-ins to aggressive drivers only (the copies still give a driver its type's presets,
+  with its present speed as its desired speed);
 * ``positions``: every vehicle's position along the road and speed are the simulator's, without the fixes' noise;
 * ``attempts``: every open cut-in attempt is the simulator's (:class:`OpenAttempt`: how long it has been open, so
-  when the driver gives up and weaves; its style, near miss or not; a near miss's brake under way and the lane kept
-  after it), its driver aggressive in every copy; this gives the chases too (a driver without an open attempt
-  chases no one). A copy still draws every attempt not yet open, as the state's oracle does.
+  when the driver gives up and weaves; its style, near miss or not; a near miss's brake under way, its driver
+  steering to the victim's lane, and the lane kept after it), its driver aggressive in every copy; this gives the
+  chases too (a driver without an open attempt chases no one). A copy still draws every attempt not yet open, as
+  the state's oracle does.
 """
 
 from __future__ import annotations
@@ -365,6 +368,8 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
         aggressive, chasing = _type(picture, i, vid != ego_id, rng)
         attempt = attempts.get(vid)
         aggressive = aggressive or attempt is not None
+        if attempt is not None and attempt.brake is not None:
+            side = int(attempt.brake.lane_index[2]) - lane  # a near miss under way steers to its victim's lane
         params = traffic.aggressive if aggressive else traffic.normal
         profile = DriverProfile.from_preset(params, speed, traffic.cut_in_rate_per_min if aggressive else 0.0)
         lane_obj = road.network.get_lane(lane_index)
