@@ -310,8 +310,6 @@ def test_the_simulators_open_attempt_goes_into_a_picture_copy_as_it_is():
     """``reveal`` ``attempts``: a driver with an open attempt is aggressive in every copy, its attempt open for as long
     as it has been (so it weaves when its patience runs out) and of its style; a near miss's brake under way and the
     lane kept after it carry over, in times from now; a driver without one draws as before."""
-    from dataclasses import fields
-
     from dt_highway.evaluation.intent_oracle import OpenAttempt, RevealedPicture, picture_road
     from dt_highway.twin.tagger import HighwayMap
     from dt_highway.world.traffic import BrakePlan
@@ -329,8 +327,7 @@ def test_the_simulators_open_attempt_goes_into_a_picture_copy_as_it_is():
 
     network = RoadNetwork.straight_road_network(3, speed_limit=30)
     picture = _picture([(7, 230.0, 0.0, 26.0, 0.0, 0.0), (8, 180.0, 0.0, 24.0, 0.0, 0.0), (9, 150.0, 8.0, 28.0, 0.0, 0.0)])
-    given = RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)},
-                            attempts={7: attempt, 9: braking})
+    given = RevealedPicture.of(picture, {7: attempt, 9: braking})
     for seed in range(5):
         by_id = {v.dt_id: v for v in picture_road(network, given, HighwayMap(4.0, 3), TrafficConfig(),
                                                  np.random.default_rng(seed)).vehicles}
@@ -346,9 +343,8 @@ def test_the_simulators_open_attempt_goes_into_a_picture_copy_as_it_is():
     by_id[9].act()
     assert by_id[9].target_lane_index[2] == 1 and by_id[9].cut_in.brake is not None
     # a driver chasing for longer than its patience gives up at once and weaves (here: into the empty lane 1)
-    weaver = picture_road(network, RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)},
-                                                   attempts={8: OpenAttempt(False, 60.0)}),
-                          HighwayMap(4.0, 3), TrafficConfig(), np.random.default_rng(0))
+    weaver = picture_road(network, RevealedPicture.of(picture, {8: OpenAttempt(False, 60.0)}), HighwayMap(4.0, 3),
+                          TrafficConfig(), np.random.default_rng(0))
     car = next(v for v in weaver.vehicles if v.dt_id == 8)
     car.act()
     assert car.target_lane_index[2] == 1 and car.cut_in is not None and car.cut_in.next_attempt_s > 0.0

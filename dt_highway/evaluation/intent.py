@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -53,7 +53,7 @@ from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
 from dt_highway.drivers import Driver
 from dt_highway.env import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
-from dt_highway.evaluation.intent_oracle import OpenAttempt, Oracle, OracleSettings, RevealedPicture
+from dt_highway.evaluation.intent_oracle import GIVES_CHASES, OpenAttempt, Oracle, OracleSettings, RevealedPicture
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
 from dt_highway.labels import AGGRESSIVE
 from dt_highway.twin.chase import ChaseDetector, ChaseInputs, chase_inputs
@@ -229,7 +229,7 @@ def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None,
     twin = _twin(env)
     picture = twin_picture(twin.store, twin.tagger.records, twin.now_s, twin.config.tagger.prior_aggressive)
     picture = picture.with_moves(table)
-    if {"chases", "attempts"} & reveal:
+    if GIVES_CHASES & reveal:
         picture = picture.with_chases(picture.vehicle_ids, _chasing(env, picture.vehicle_ids).astype(float))
     elif chase is not None:
         inputs = _chase_inputs(env)
@@ -250,7 +250,7 @@ def _picture(env: DTHighwayEnv, table: IntentTable, chase: ChaseDetector | None,
     if "attempts" in reveal:
         attempts = {vid: a for vid, v in on_road.items() if isinstance(policy := getattr(v, "cut_in", None), CutInPolicy)
                     and (a := OpenAttempt.of(policy, v.clock_s)) is not None}
-        picture = RevealedPicture(**{f.name: getattr(picture, f.name) for f in fields(picture)}, attempts=attempts)
+        picture = RevealedPicture.of(picture, attempts)
     return picture
 
 
@@ -961,7 +961,7 @@ def _model_note(result: dict[str, Any], name: str) -> str:
     if name == ORACLE and result.get("oracle", {}).get("start") == "picture":
         given = result["oracle"].get("reveal", [])
         chases = (" and its chase detector's verdicts"
-                  if not {"chases", "attempts"} & {*result["oracle"].get("hide", []), *given} else "")
+                  if not GIVES_CHASES & {*result["oracle"].get("hide", []), *given} else "")
         truth = f" with the simulator's {' and '.join(REVEALED[n] for n in given)}" if given else ""
         return (f" (the twin's picture{chases}{truth} simulated with the simulator's driver models, "
                 f"{result['oracle']['rollouts']} futures per estimate: a twin with a perfect traffic model and the "

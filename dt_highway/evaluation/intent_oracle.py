@@ -78,7 +78,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -103,6 +103,8 @@ PICTURE_HIDEABLE = ("chases",)
 PICTURE_REVEALABLE = ("chases", "lateral", "types", "positions", "attempts")
 """What of the simulator's state the oracle starting from the twin's picture can be given instead of the twin's
 estimate (see the module docstring)"""
+GIVES_CHASES = frozenset({"chases", "attempts"})
+"""The parts of :data:`PICTURE_REVEALABLE` that make the picture's chases the simulator's (open attempts give them)"""
 STARTS = ("state", "picture")
 """What the copies start from: the simulator's state, or the twin's picture (see the module docstring)"""
 MOVING_OFFSET_M = 0.5
@@ -163,7 +165,7 @@ class OracleSettings:
     @property
     def chases_given(self) -> bool:
         """Whether the picture's chases are the simulator's (``chases`` or ``attempts`` given)."""
-        return bool({"chases", "attempts"} & self.reveal)
+        return bool(GIVES_CHASES & self.reveal)
 
 
 @dataclass(frozen=True)
@@ -213,6 +215,11 @@ class RevealedPicture(TwinPicture):
     """
 
     attempts: Mapping[int, OpenAttempt] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, picture: TwinPicture, attempts: Mapping[int, OpenAttempt]) -> RevealedPicture:
+        """:return: ``picture`` with ``attempts``"""
+        return cls(**{f.name: getattr(picture, f.name) for f in fields(picture)}, attempts=attempts)
 
 
 def _policies(road: Road) -> list[CutInPolicy]:
