@@ -12,7 +12,17 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError, DTConfig, IntentionConfig, TwinConfig, load_config, validate
 from dt_highway.env import DTHighwayEnv
-from dt_highway.evaluation.intent import Episode, Truth, Warning, cut_in_leads, warning_runs
+from dt_highway.evaluation.intent import (
+    Episode,
+    Truth,
+    Warning,
+    cut_in_leads,
+    cut_in_scores,
+    runs_at,
+    view_samples,
+    warning_runs,
+    warning_time_s,
+)
 from dt_highway.evaluation.intent_train import dataset, fit
 from dt_highway.labels import NORMAL
 from dt_highway.twin import CloudTwin, FixStore, GnssFix, HighwayMap
@@ -319,6 +329,81 @@ def test_warning_runs_precision_and_lead_time_by_hand():
                                                           pytest.approx((4.0, 4.5))]
     assert runs[0].start_s == pytest.approx(0.5) and runs[0].end_s == pytest.approx(2.8)
     assert cut_in_leads(ep.cut_ins, runs, 1.0) == [pytest.approx(2.0)]  # from 0.5 s to the overlap at 2.5 s
+    # a warning is on over 0.0-0.3, 0.5-2.8 (car 6's 1.5-1.8 inside it) and 4.0-4.5: 3.1 s of the 6.0 s
+    assert warning_time_s(runs) == pytest.approx(3.1)
+    scores = cut_in_scores([ep], [Truth(ep.truth, 0.1)], [view_samples(ep, probs, 0)], 0.5, 1.0)
+    assert scores["warning_time_share"] == pytest.approx(3.1 / 6.0)
+    assert scores["false_warnings_per_min"] == pytest.approx(3 / 0.1)  # car 6's three runs in 0.1 min
+
+
+def _late(warned, probs_at=None, views_at=None):
+    """``late_reasons`` of the one cut-in of :func:`_episode` (car 5 at 2.5 s) at threshold 0.5, horizon 1 s, with
+    car 5's probabilities and view entries optionally changed per view time."""
+    from dt_highway.evaluation.intent import late_reasons
+
+    ep, probs = _episode(warned)
+    for k, (t, _) in enumerate(ep.tables):
+        if probs_at is not None:
+            probs[k][0, 0] = probs_at(t, probs[k][0, 0])
+        if views_at is not None:
+            ep.views[k] = views_at(ep.views[k])
+    smp = view_samples(ep, probs, 0)
+    runs = runs_at(smp, Truth(ep.truth, 0.1), 0.5, 1.0)
+    leads = cut_in_leads(ep.cut_ins, runs, 1.0)
+    return leads[0], {r: n for r, n in late_reasons(ep.cut_ins, leads, smp, 0.5).items() if n}
+
+
+def test_why_a_cut_in_was_not_warned_in_time_is_read_from_the_cars_view_then():
+    def from_(t0):
+        return lambda t: (0.9 if t >= t0 - 1e-9 else 0.1, 0.0)
+
+    assert _late(from_(0.5)) == (pytest.approx(2.0), {})  # warned 2 s ahead: not late
+    assert _late(from_(1.5)) == (pytest.approx(1.0), {"below the threshold": 1})  # p 0.1 at 1.0 s
+    # above the threshold at 1.0 s, but toward lane 3 (right of its lane 2), not the ego's lane 1; from 1.5 s toward it
+    right = _late(from_(0.5), probs_at=lambda t, p: np.array([0.1, 0.0, 0.9]) if t < 1.5 - 1e-9 else p)
+    assert right == (pytest.approx(1.0), {"another lane predicted": 1})
+    # 80 m ahead until 1.2 s: outside the window of 65 m; not in the ego's views until 1.2 s
+    far = _late(from_(0.5), views_at=lambda v: (*v[:3], np.array([80.0, 30.0]), v[4]) if v[0] < 1.2 - 1e-9 else v)
+    assert far == (pytest.approx(1.3), {"beyond the window": 1})
+    unseen = _late(from_(0.5), views_at=lambda v: (*v[:2], v[2][1:], v[3][1:], v[4]) if v[0] < 1.2 - 1e-9 else v)
+    assert unseen == (pytest.approx(1.3), {"not in the view": 1})
+    # warned from 0.5 s, gone 1.2-2.2 s (1 s: a new run), back at 2.2 s: the lead counts from 2.2 s
+    back = _late(lambda t: (0.9 if 0.5 - 1e-9 <= t < 1.2 - 1e-9 or t >= 2.2 - 1e-9 else 0.1, 0.0))
+    assert back == (pytest.approx(0.3), {"warned, then a break": 1})
+
+
+def test_the_time_a_warning_is_on_counts_each_moment_once():
+    assert warning_time_s([]) == 0.0
+    runs = [Warning(1, 2.0, 3.0, True), Warning(2, 0.0, 1.0, False), Warning(3, 0.5, 2.5, True),
+            Warning(4, 1.0, 1.2, True), Warning(5, 5.0, 5.5, False)]
+    assert warning_time_s(runs) == pytest.approx(3.0 + 0.5)  # 0.0-3.0 joined, then 5.0-5.5
+    assert warning_time_s(runs[::-1]) == pytest.approx(3.5)  # in any order
+    assert warning_time_s(runs, until_s=2.0) == pytest.approx(2.0) and warning_time_s(runs, until_s=0.0) == 0.0
+
+
+def test_the_operating_curve_has_every_figure_per_threshold_and_prints_a_line():
+    from dt_highway.evaluation.intent import CURVE_KEYS, THRESHOLDS, format_intent, score_probs
+
+    ep, probs = _episode(lambda t: (0.9 if t >= 1.0 - 1e-9 else 0.3, 0.0))
+    scores = score_probs([ep], [probs], (1.0,), IntentionConfig(horizons_s=[1.0], operating_horizon_s=1.0))
+    curve = scores["cut_ins"][0]["curve"]
+    assert len(curve) == len(THRESHOLDS) and all(set(g) == set(CURVE_KEYS) for g in curve)
+    by = {round(g["threshold"], 3): g for g in curve}
+    # at 0.25 car 5 is warned from the start (lead 2.5 s, on 0.0-6.0 s), at 0.35 from 1.0 s (lead 1.5 s, on 1.0-6.0 s;
+    # the last view is shown until 6.1 s, past the episode's end at 6.0 s, which is not counted)
+    assert by[0.25]["median_lead_s"] == pytest.approx(2.5) and by[0.25]["warning_time_share"] == pytest.approx(1.0)
+    assert by[0.35]["median_lead_s"] == pytest.approx(1.5)
+    assert by[0.35]["warning_time_share"] == pytest.approx(5.0 / 6.0)
+    assert by[0.95]["warning_time_share"] == 0.0 and by[0.95]["share_warned_1.5s_ahead"] == 0.0
+    result = {"configured_model": "learned", "operating": {"horizon_s": 1.0, "threshold": 0.65}, "episodes": 1,
+              "seed": 0, "models": {"learned": scores}}
+    line = [x for x in format_intent(result) if "operating curve" in x]
+    assert len(line) == 1 and "0.25: 1.00, 2.50 s, 1.00, 0.0, 1.00; 0.35: 1.00, 1.50 s, 1.00, 0.0, 0.83;" in line[0]
+    late = [x for x in format_intent(result) if "not warned >= 1.5 s ahead" in x]  # warned 1.5 s ahead at 0.65
+    assert len(late) == 1 and "(0 of 1)" in late[0] and "below the threshold 0, another lane predicted 0" in late[0]
+    # a result of an older version without a curve prints no such line
+    del result["models"]["learned"]["cut_ins"][0]["curve"]
+    assert not [x for x in format_intent(result) if "operating curve" in x]
 
 
 def test_when_the_driver_decided_is_the_last_switch_of_its_target_lane_seen():
@@ -436,6 +521,7 @@ def test_twin_eval_intent_on_a_tiny_input(capsys):
     assert result["operating"] == {"horizon_s": 3.0, "threshold": 0.65}
     cut_ins = scores["cut_ins"][2]
     assert cut_ins["horizon_s"] == 3.0 and len(cut_ins["curve"]) == 37
+    assert 0.0 <= cut_ins["curve"][0]["warning_time_share"] <= 1.0
     assert result["settings"]["noise_sigma_m"] == 1.0
 
 

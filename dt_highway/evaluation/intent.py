@@ -24,9 +24,12 @@ car's body overlaps the ego's lane at some moment in ``[a, b + H + 1 s]`` (it di
 ego's path; the false-warning rule of issue 19 with the run's last moment). A cut-in at ``t_o``
 is **warned** when a true run on that car started before ``t_o``; its **lead time** is ``t_o - a``
 for the latest such run (a warning that went away and came back counts from its return).
-Precision = true runs / runs; recall = warned cut-ins / cut-ins. ``recall_at_precision`` is the
-best recall over the threshold grid ``THRESHOLDS`` among the thresholds with precision
->= ``MIN_PRECISION``, with that threshold's precision and median lead time; ``longest_lead`` the
+Precision = true runs / runs; recall = warned cut-ins / cut-ins; the **share of the time a warning is on** is
+how long at least one run was on (the union of the runs), over the episodes' duration: the twin's side of the
+threat overlay's "marks on screen" (the overlay adds its range, the camera's view and its hold time). Each
+threshold of the grid ``THRESHOLDS`` gives these in a horizon's ``curve``; the cut-ins not warned 1.5 s ahead get
+a reason (:func:`late_reasons`). ``recall_at_precision`` is the best recall over that grid among the thresholds
+with precision >= ``MIN_PRECISION``, with that threshold's precision and median lead time; ``longest_lead`` the
 threshold with precision >= ``MIN_PRECISION`` and recall >= ``MIN_RECALL`` whose median lead time is
 the longest (the targets of issue 19 ask for all three: 0.80, 0.90 and 2 s).
 
@@ -99,6 +102,17 @@ CUT_IN_GAP_M = 60.0
 GAP_BANDS_M = (0.0, 10.0, 20.0, 40.0, CUT_IN_GAP_M)
 """The cut-ins' lead times are also given per band of bumper gap at their first overlap [m] (the closer a car
 cuts in, the less time headway the ego has without a warning)"""
+WARN_AHEAD_S = 1.5
+"""How far ahead of a cut-in a warning should start (the threat overlay's goal in issue 19) [s]"""
+LATE_REASONS = ("below the threshold", "another lane predicted", "beyond the window", "not in the view",
+                "warned, then a break")
+"""Why a cut-in was not warned :data:`WARN_AHEAD_S` ahead, as seen in the car's view then (:func:`late_reasons`)"""
+VIEW_GAP_S = 0.5
+"""A car's last view sample at most this long before that moment still describes it [s]"""
+CURVE_KEYS = ("threshold", "precision", "recall", "median_lead_s", "share_warned_1.5s_ahead", "false_warnings_per_min",
+              "warning_time_share")
+"""The figures of each threshold of the grid kept in a horizon's ``curve`` (the operating curve: what a choice of
+``twin.intention.threshold`` or ``overlay.threshold`` trades)"""
 INTERVAL_LEVEL = 0.95
 """Confidence level of the intervals of the chosen thresholds' cut-in figures [-]"""
 INTERVAL_RESAMPLES = 2000
@@ -634,6 +648,54 @@ def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: 
     return leads
 
 
+def warning_time_s(runs: Sequence[Warning], until_s: float = math.inf) -> float:
+    """How long at least one warning run was on before ``until_s`` [s]: the length of the union of the runs'
+    ``[start_s, end_s]`` (the runs of several cars overlap; each moment counts once)."""
+    total, reach = 0.0, -math.inf
+    for start, end in sorted((w.start_s, min(w.end_s, until_s)) for w in runs if w.start_s < until_s):
+        if end > reach:
+            total += end - max(start, reach)
+            reach = end
+    return total
+
+
+def late_reasons(cut_ins: Sequence[dict[str, Any]], leads: Sequence[float], samples: ViewSamples,
+                 threshold: float) -> dict[str, int]:
+    """Why each cut-in not warned at least :data:`WARN_AHEAD_S` ahead was not, read from the car's last view sample
+    at or before ``WARN_AHEAD_S`` before its first overlap: its ``p_change`` was below ``threshold``; it was above
+    but the lane predicted was not the ego's (e.g. a car two lanes over moving into the middle lane first); its
+    twin position was outside :data:`DX_WINDOW_M`; the ego had no view of it in the :data:`VIEW_GAP_S` before; or it
+    was warned then, but the warning went away for :data:`MERGE_S` or longer and the lead counts from its return.
+
+    :param cut_ins: the cut-ins (``t_s``, ``vehicle_id``)
+    :param leads: their lead times [s] (NaN: not warned), as :func:`cut_in_leads`
+    :param samples: the episode's view samples at the horizon scored
+    :param threshold: the threshold scored [-]
+    :return: a count per reason of :data:`LATE_REASONS`
+    """
+    out = dict.fromkeys(LATE_REASONS, 0)
+    for c, lead in zip(cut_ins, leads, strict=True):
+        if lead >= WARN_AHEAD_S:
+            continue
+        t = c["t_s"] - WARN_AHEAD_S
+        mine = np.flatnonzero((samples.vehicle_id == c["vehicle_id"]) & (samples.t_s <= t + 1e-9)
+                              & (samples.t_s > t - VIEW_GAP_S))
+        if not len(mine):
+            reason = "not in the view"
+        else:
+            j = mine[np.argmax(samples.t_s[mine])]
+            if not DX_WINDOW_M[0] <= samples.dx_m[j] <= DX_WINDOW_M[1]:
+                reason = "beyond the window"
+            elif samples.p_change[j] < threshold:
+                reason = "below the threshold"
+            elif samples.target[j] != samples.ego_lane[j]:
+                reason = "another lane predicted"
+            else:
+                reason = "warned, then a break"
+        out[reason] += 1
+    return out
+
+
 def _lead_figures(lead: np.ndarray) -> dict[str, float]:
     """Recall, median lead [s] and the shares warned at least :data:`LEAD_STEPS_S` ahead of cut-ins with these
     lead times [s] (NaN: not warned)."""
@@ -659,12 +721,16 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
     decided: list[float] = []
     gaps: list[float] = []
     nan = float("nan")
-    duration = 0.0
+    duration = warned_s = 0.0
+    late = dict.fromkeys(LATE_REASONS, 0)
     for ep, truth, smp in zip(episodes, truths, samples, strict=True):
         runs = runs_at(smp, truth, threshold, horizon_s)
+        warned_s += warning_time_s(runs, until_s=ep.t_end_s)
         cuts = [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
-        per_episode.append((np.array(cut_in_leads(cuts, runs, horizon_s), dtype=float), sum(w.true for w in runs),
-                            len(runs)))
+        leads = cut_in_leads(cuts, runs, horizon_s)
+        for reason, n in late_reasons(cuts, leads, smp, threshold).items():
+            late[reason] = late.get(reason, 0) + n
+        per_episode.append((np.array(leads, dtype=float), sum(w.true for w in runs), len(runs)))
         kinds += [c.get("maneuver") or "own" for c in cuts]
         decided += [c["t_s"] - c.get("t_decided_s", nan) for c in cuts]
         gaps += [c["gap_m"] for c in cuts]
@@ -681,7 +747,9 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
         "n_cut_ins": int(len(lead)),
         "n_warnings": n_runs,
         "false_warnings_per_min": (n_runs - n_true) / (duration / 60.0) if duration > 0 else nan,
+        "warning_time_share": warned_s / duration if duration > 0 else nan,
         **figures,
+        "late_reasons": late,
     }
     by_kind: dict[str, Any] = {}
     for kind in sorted(set(kinds)):
@@ -791,8 +859,7 @@ def score_probs(episodes: Sequence[Episode], probs: Sequence[list[np.ndarray]], 
             "recall_at_precision": best["recall"] if best else 0.0,
             "best": best,
             "longest_lead": longest,
-            "curve": [{"threshold": g["threshold"], "precision": g["precision"], "recall": g["recall"],
-                       "median_lead_s": g["median_lead_s"]} for g in grid],
+            "curve": [{key: g[key] for key in CURVE_KEYS} for g in grid],
         })
     return {"per_horizon": per_horizon, "cut_ins": cut_ins}
 
@@ -935,7 +1002,41 @@ def format_intent(result: dict[str, Any]) -> list[str]:
                      f"(threshold {_f(head['threshold_longest_lead'])})")
         lines.append(_by_kind(s, op["horizon_s"]))
         lines += _by_gap_and_intervals(s, op["horizon_s"])
+        lines += _late_line(s, op["horizon_s"])
+        lines += _operating_curve(s, op["horizon_s"])
     return lines
+
+
+def _late_line(scores: dict[str, Any], horizon_s: float) -> list[str]:
+    """The line of why cut-ins were not warned :data:`WARN_AHEAD_S` ahead at the operating threshold (none when
+    the scores have no such counts, as a result of an older version)."""
+    op = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))["at_threshold"]
+    late = op.get("late_reasons")
+    if not late:
+        return []
+    cells = ", ".join(f"{reason} {n}" for reason, n in late.items())
+    return [(f"  not warned >= {WARN_AHEAD_S:g} s ahead at the operating threshold ({sum(late.values())} of "
+             f"{op['n_cut_ins']}), as the car's view was {WARN_AHEAD_S:g} s before the overlap: {cells}")]
+
+
+CURVE_PRINTED = (0.15, 0.25, 0.35, 0.45, 0.55, 0.65, 0.75, 0.85)
+"""Thresholds of the operating curve in the text output (the JSON's ``curve`` has the whole grid)"""
+
+
+def _operating_curve(scores: dict[str, Any], horizon_s: float) -> list[str]:
+    """The line of the operating curve: at each of :data:`CURVE_PRINTED`, what the warnings to the ego would be
+    (none when the scores have no curve; ``-`` for a figure a result of an older version lacks)."""
+    ci = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+    at = {round(g["threshold"], 3): g for g in ci.get("curve", [])}
+    nan = math.nan
+    cells = [f"{th:g}: {_f(g.get('precision', nan), 2)}, {_f(g.get('median_lead_s', nan), 2)} s, "
+             f"{_f(g.get('share_warned_1.5s_ahead', nan), 2)}, {_f(g.get('false_warnings_per_min', nan), 1)}, "
+             f"{_f(g.get('warning_time_share', nan), 2)}"
+             for th in CURVE_PRINTED for g in [at.get(th)] if g is not None]
+    if not cells:
+        return []
+    return ["  operating curve (threshold: precision, median lead, warned >= 1.5 s ahead, false warnings per minute, "
+            "share of the time a warning is on): " + "; ".join(cells)]
 
 
 REVEALED = {"chases": "chases of the ego", "lateral": "lateral states", "types": "driver types",
