@@ -323,8 +323,8 @@ def test_warning_runs_precision_and_lead_time_by_hand():
 
     ep, probs = _episode(warned)
     runs = warning_runs(ep, Truth(ep.truth, 0.1), probs, 0, 0.5, 1.0)
-    assert [(w.vehicle_id, w.true) for w in runs] == [(5, True), (6, False), (6, False), (6, False)]  # car 6's target
-    # is lane 1 too
+    assert [(w.vehicle_id, w.true, w.entered) for w in runs] == [(5, True, True), (6, False, False), (6, False, False),
+                                                                   (6, False, False)]  # car 6's target is lane 1 too
     assert [(w.start_s, w.end_s) for w in runs[1:]] == [pytest.approx((0.0, 0.3)), pytest.approx((1.5, 1.8)),
                                                           pytest.approx((4.0, 4.5))]
     assert runs[0].start_s == pytest.approx(0.5) and runs[0].end_s == pytest.approx(2.8)
@@ -334,6 +334,32 @@ def test_warning_runs_precision_and_lead_time_by_hand():
     scores = cut_in_scores([ep], [Truth(ep.truth, 0.1)], [view_samples(ep, probs, 0)], 0.5, 1.0)
     assert scores["warning_time_share"] == pytest.approx(3.1 / 6.0)
     assert scores["false_warnings_per_min"] == pytest.approx(3 / 0.1)  # car 6's three runs in 0.1 min
+    assert scores["precision"] == scores["precision_lane_entry"] == pytest.approx(0.25)
+
+
+def test_a_warning_is_true_only_when_its_car_cuts_in_not_when_it_merely_enters_the_lane():
+    # car 5's body is over the ego's lane from 2.5 s on (it enters at 2.5 s); warned 0.5-1.5 s
+    def warned(t):
+        return (0.9 if 0.5 - 1e-9 <= t < 1.5 - 1e-9 else 0.1, 0.0)
+
+    ep, probs = _episode(warned)
+    truth = Truth(ep.truth, 0.1)
+    smp = view_samples(ep, probs, 0)
+    # a cut-in at 2.5 s: true under both rules; the lead is 2.0 s
+    (run,) = runs_at(smp, truth, ep.cut_ins, 0.5, 1.0)
+    assert (run.true, run.entered) == (True, True) and cut_in_leads(ep.cut_ins, [run], 1.0) == [pytest.approx(2.0)]
+    # the same lane entry without a cut-in (say, behind the ego or ahead of its leader): only entered
+    (run,) = runs_at(smp, truth, [], 0.5, 1.0)
+    assert (run.true, run.entered) == (False, True)
+    # a cut-in by this car after the run's end + H + 1 s is too late to make it true; another car's never does
+    assert not runs_at(smp, truth, [{"t_s": 4.6, "vehicle_id": 5}, {"t_s": 2.5, "vehicle_id": 6}], 0.5, 1.0)[0].true
+    # a warning that starts after the cut-in (the car already over the lane) is false, though the car entered
+    ep, probs = _episode(lambda t: (0.9 if t >= 2.6 - 1e-9 else 0.1, 0.0))
+    (run,) = runs_at(view_samples(ep, probs, 0), truth, ep.cut_ins, 0.5, 1.0)
+    assert (run.true, run.entered) == (False, True)
+    ep.cut_ins = [{**ep.cut_ins[0], "gap_m": 60.0}]  # at 60 m or more the cut-in is not counted
+    scores = cut_in_scores([ep], [truth], [view_samples(ep, probs, 0)], 0.5, 1.0)
+    assert scores["n_cut_ins"] == 0 and scores["precision"] == 0.0 and scores["precision_lane_entry"] == 1.0
 
 
 def _late(warned, probs_at=None, views_at=None):
@@ -348,7 +374,7 @@ def _late(warned, probs_at=None, views_at=None):
         if views_at is not None:
             ep.views[k] = views_at(ep.views[k])
     smp = view_samples(ep, probs, 0)
-    runs = runs_at(smp, Truth(ep.truth, 0.1), 0.5, 1.0)
+    runs = runs_at(smp, Truth(ep.truth, 0.1), ep.cut_ins, 0.5, 1.0)
     leads = cut_in_leads(ep.cut_ins, runs, 1.0)
     return leads[0], {r: n for r, n in late_reasons(ep.cut_ins, leads, smp, 0.5).items() if n}
 
@@ -374,8 +400,8 @@ def test_why_a_cut_in_was_not_warned_in_time_is_read_from_the_cars_view_then():
 
 def test_the_time_a_warning_is_on_counts_each_moment_once():
     assert warning_time_s([]) == 0.0
-    runs = [Warning(1, 2.0, 3.0, True), Warning(2, 0.0, 1.0, False), Warning(3, 0.5, 2.5, True),
-            Warning(4, 1.0, 1.2, True), Warning(5, 5.0, 5.5, False)]
+    runs = [Warning(1, 2.0, 3.0, True, True), Warning(2, 0.0, 1.0, False, False), Warning(3, 0.5, 2.5, True, True),
+            Warning(4, 1.0, 1.2, True, True), Warning(5, 5.0, 5.5, False, True)]
     assert warning_time_s(runs) == pytest.approx(3.0 + 0.5)  # 0.0-3.0 joined, then 5.0-5.5
     assert warning_time_s(runs[::-1]) == pytest.approx(3.5)  # in any order
     assert warning_time_s(runs, until_s=2.0) == pytest.approx(2.0) and warning_time_s(runs, until_s=0.0) == 0.0
@@ -493,7 +519,7 @@ def test_the_resampled_medians_are_numpys_median_of_the_repeated_leads():
 
 
 def test_a_warning_after_the_overlap_or_long_before_is_no_lead():
-    runs = [Warning(5, 2.6, 3.0, True), Warning(5, 0.0, 0.2, False)]
+    runs = [Warning(5, 2.6, 3.0, False, True), Warning(5, 0.0, 0.2, False, False)]
     assert math.isnan(cut_in_leads([{"t_s": 2.5, "vehicle_id": 5}], runs, 1.0)[0])
 
 

@@ -19,12 +19,17 @@ ego's lane and becomes its leader with a bumper gap under 60 m). A **warning** i
 received: a car in the delivered view with ``p_change`` at the operating horizon ``>= threshold``
 and ``target_lane`` = the ego's lane, whose twin position is within ``DX_WINDOW_M`` of the ego
 (centre to centre, along the road). Warnings of one car separated by less than ``MERGE_S`` are
-one **warning run** ``[a, b]`` (the overlay holds a mark that long). A run is **true** when the
-car's body overlaps the ego's lane at some moment in ``[a, b + H + 1 s]`` (it did move into the
-ego's path; the false-warning rule of issue 19 with the run's last moment). A cut-in at ``t_o``
-is **warned** when a true run on that car started before ``t_o``; its **lead time** is ``t_o - a``
-for the latest such run (a warning that went away and came back counts from its return).
-Precision = true runs / runs; recall = warned cut-ins / cut-ins; the **share of the time a warning is on** is
+one **warning run** ``[a, b]`` (the overlay holds a mark that long). A run is **true** when that
+car cuts in in front of the ego (one of the cut-ins counted here) at some moment in ``[a, b + H + 1 s]``:
+issue 19's rule, "a warned car that did not cut in within H + 1 s" is a false warning, with the run's
+last moment, as the study's overlay metrics count it (:mod:`dt_highway.metrics.overlay_metrics`). Up to
+2026-11-27 a run was true when the car's body overlapped the ego's lane at some moment of that interval,
+which also counted cars that entered the lane behind the ego, ahead of its leader or more than 60 m
+ahead, touched the lane and left, or were already in it when the run began; that rule's precision is
+still given as ``precision_lane_entry``. A cut-in at ``t_o``
+is **warned** when a run on that car started before ``t_o`` and ended at most ``H + 1 s`` before it; its
+**lead time** is ``t_o - a`` for the latest such run (a warning that went away and came back counts from its
+return). Precision = true runs / runs; recall = warned cut-ins / cut-ins; the **share of the time a warning is on** is
 how long at least one run was on (the union of the runs), over the episodes' duration: the twin's side of the
 threat overlay's "marks on screen" (the overlay adds its range, the camera's view and its hold time). Each
 threshold of the grid ``THRESHOLDS`` gives these in a horizon's ``curve``; the cut-ins not warned 1.5 s ahead get
@@ -110,7 +115,7 @@ LATE_REASONS = ("below the threshold", "another lane predicted", "beyond the win
 VIEW_GAP_S = 0.5
 """A car's last view sample at most this long before that moment still describes it [s]"""
 CURVE_KEYS = ("threshold", "precision", "recall", "median_lead_s", "share_warned_1.5s_ahead", "false_warnings_per_min",
-              "warning_time_share")
+              "warning_time_share", "precision_lane_entry")
 """The figures of each threshold of the grid kept in a horizon's ``curve`` (the operating curve: what a choice of
 ``twin.intention.threshold`` or ``overlay.threshold`` trades)"""
 INTERVAL_LEVEL = 0.95
@@ -550,12 +555,17 @@ def vehicle_scores(episodes: Sequence[Episode], truths: Sequence[Truth], probs: 
 
 @dataclass(frozen=True)
 class Warning:
-    """A warning run on one car (sim times [s])."""
+    """A warning run on one car (sim times [s]).
+
+    :param true: the car cut in in front of the ego within ``[start_s, end_s + H + 1 s]`` (module docstring)
+    :param entered: its body overlapped the ego's lane then (the rule for ``true`` up to 2026-11-27)
+    """
 
     vehicle_id: int
     start_s: float
     end_s: float
     true: bool
+    entered: bool
 
 
 def _view_tables(ep: Episode) -> np.ndarray:
@@ -612,8 +622,21 @@ def view_samples(ep: Episode, probs: list[np.ndarray], k: int) -> ViewSamples:
     return ViewSamples(*cols)
 
 
-def runs_at(samples: ViewSamples, truth: Truth, threshold: float, horizon_s: float) -> list[Warning]:
-    """The warning runs at one threshold (module docstring)."""
+def counted_cut_ins(ep: Episode) -> list[dict[str, Any]]:
+    """The episode's cut-ins in front of the ego that are scored: bumper gap under :data:`CUT_IN_GAP_M`."""
+    return [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
+
+
+def runs_at(samples: ViewSamples, truth: Truth, cut_ins: Sequence[dict[str, Any]], threshold: float,
+            horizon_s: float) -> list[Warning]:
+    """The warning runs at one threshold (module docstring).
+
+    :param cut_ins: the episode's counted cut-ins (:func:`counted_cut_ins`; ``t_s``, ``vehicle_id``), which make
+        a run true
+    """
+    cut_at: dict[int, list[float]] = {}
+    for c in cut_ins:
+        cut_at.setdefault(int(c["vehicle_id"]), []).append(float(c["t_s"]))
     s = samples
     warned = (s.p_change >= threshold) & (s.target == s.ego_lane) & (s.dx_m >= DX_WINDOW_M[0]) & (s.dx_m <= DX_WINDOW_M[1])
     vid, t0, t1 = s.vehicle_id[warned], s.t_s[warned], s.t_next_s[warned]
@@ -628,14 +651,16 @@ def runs_at(samples: ViewSamples, truth: Truth, threshold: float, horizon_s: flo
     ends = np.r_[starts[1:], len(vid)] - 1
     for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
         car, start, end = int(vid[a]), float(t0[a]), float(t1[a:b + 1].max())
-        runs.append(Warning(car, start, end, truth.overlaps_between(car, start, end + horizon_s + LATE_S)))
+        late = end + horizon_s + LATE_S
+        runs.append(Warning(car, start, end, any(start <= t <= late for t in cut_at.get(car, ())),
+                            truth.overlaps_between(car, start, late)))
     return runs
 
 
 def warning_runs(ep: Episode, truth: Truth, probs: list[np.ndarray], k: int, threshold: float,
                  horizon_s: float) -> list[Warning]:
     """The warning runs the ego would have seen (module docstring), from the episode's views."""
-    return runs_at(view_samples(ep, probs, k), truth, threshold, horizon_s)
+    return runs_at(view_samples(ep, probs, k), truth, counted_cut_ins(ep), threshold, horizon_s)
 
 
 def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: float) -> list[float]:
@@ -722,11 +747,13 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
     gaps: list[float] = []
     nan = float("nan")
     duration = warned_s = 0.0
+    n_entered = 0
     late = dict.fromkeys(LATE_REASONS, 0)
     for ep, truth, smp in zip(episodes, truths, samples, strict=True):
-        runs = runs_at(smp, truth, threshold, horizon_s)
+        cuts = counted_cut_ins(ep)
+        runs = runs_at(smp, truth, cuts, threshold, horizon_s)
         warned_s += warning_time_s(runs, until_s=ep.t_end_s)
-        cuts = [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
+        n_entered += sum(w.entered for w in runs)
         leads = cut_in_leads(cuts, runs, horizon_s)
         for reason, n in late_reasons(cuts, leads, smp, threshold).items():
             late[reason] = late.get(reason, 0) + n
@@ -742,6 +769,7 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
     out: dict[str, Any] = {
         "threshold": float(threshold),
         "precision": n_true / n_runs if n_runs else nan,
+        "precision_lane_entry": n_entered / n_runs if n_runs else nan,
         "recall": figures.pop("recall"),
         "median_lead_s": figures.pop("median_lead_s"),
         "n_cut_ins": int(len(lead)),
