@@ -351,8 +351,13 @@ def test_a_warning_is_true_only_when_its_car_cuts_in_not_when_it_merely_enters_t
     # the same lane entry without a cut-in (say, behind the ego or ahead of its leader): only entered
     (run,) = runs_at(smp, truth, [], 0.5, 1.0)
     assert (run.true, run.entered) == (False, True)
-    # a cut-in by this car after the run's end + H + 1 s is too late to make it true; another car's never does
-    assert not runs_at(smp, truth, [{"t_s": 4.6, "vehicle_id": 5}, {"t_s": 2.5, "vehicle_id": 6}], 0.5, 1.0)[0].true
+    # the run ends at 1.5 s: a cut-in by this car up to 1.5 + H + 1 s = 3.5 s makes it true, a later one does
+    # not, another car's never does, and neither does one at the run's very start (it warns of nothing)
+    def true_with(*cuts):
+        return runs_at(smp, truth, [{"t_s": t, "vehicle_id": v} for t, v in cuts], 0.5, 1.0)[0].true
+
+    assert true_with((3.5, 5)) and not true_with((3.6, 5)) and not true_with((2.5, 6)) and not true_with((0.5, 5))
+    assert true_with((0.6, 5))
     # a warning that starts after the cut-in (the car already over the lane) is false, though the car entered
     ep, probs = _episode(lambda t: (0.9 if t >= 2.6 - 1e-9 else 0.1, 0.0))
     (run,) = runs_at(view_samples(ep, probs, 0), truth, ep.cut_ins, 0.5, 1.0)
@@ -396,6 +401,31 @@ def test_why_a_cut_in_was_not_warned_in_time_is_read_from_the_cars_view_then():
     # warned from 0.5 s, gone 1.2-2.2 s (1 s: a new run), back at 2.2 s: the lead counts from 2.2 s
     back = _late(lambda t: (0.9 if 0.5 - 1e-9 <= t < 1.2 - 1e-9 or t >= 2.2 - 1e-9 else 0.1, 0.0))
     assert back == (pytest.approx(0.3), {"warned, then a break": 1})
+    # never warned (NaN lead): read like the others
+    never = _late(lambda t: (0.1, 0.0))
+    assert math.isnan(never[0]) and never[1] == {"below the threshold": 1}
+    # what counts is the view on screen at 1.0 s: toward another lane until 0.9 s, below the threshold at 1.0 s
+    mixed = _late(from_(1.5), probs_at=lambda t, p: np.array([0.1, 0.0, 0.9]) if t < 1.0 - 1e-9 else p)
+    assert mixed == (pytest.approx(1.0), {"below the threshold": 1})
+
+
+def test_the_late_reason_reads_the_view_on_screen_however_old_and_nothing_before_the_first():
+    from dt_highway.evaluation.intent import late_reasons
+
+    ep, probs = _episode(lambda t: (0.9 if t >= 1.5 - 1e-9 else 0.1, 0.0))
+    # a slow downlink: the view received at 0.4 s stays on screen until the next, at 2.0 s
+    keep = [k for k, v in enumerate(ep.views) if not 0.4 + 1e-9 < v[0] < 2.0 - 1e-9]
+    ep.views = [ep.views[k] for k in keep]
+    smp = view_samples(ep, probs, 0)
+    leads = cut_in_leads(ep.cut_ins, runs_at(smp, Truth(ep.truth, 0.1), ep.cut_ins, 0.5, 1.0), 1.0)
+    assert leads == [pytest.approx(0.5)]  # warned from 2.0 s
+    assert late_reasons(ep.cut_ins, leads, smp, 0.5)["below the threshold"] == 1  # the 0.4 s view: p 0.1
+    # a cut-in 1.0 s into the episode could not have been warned 1.5 s ahead: no view existed then
+    early = [{"t_s": 1.0, "vehicle_id": 5}]
+    assert late_reasons(early, [math.nan], smp, 0.5)["before the first view"] == 1
+    # the counts add up over episodes in the scores
+    scores = cut_in_scores([ep, ep], [Truth(ep.truth, 0.1)] * 2, [smp, smp], 0.5, 1.0)
+    assert scores["late_reasons"]["below the threshold"] == 2 and sum(scores["late_reasons"].values()) == 2
 
 
 def test_the_time_a_warning_is_on_counts_each_moment_once():

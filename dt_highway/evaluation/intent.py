@@ -20,9 +20,10 @@ received: a car in the delivered view with ``p_change`` at the operating horizon
 and ``target_lane`` = the ego's lane, whose twin position is within ``DX_WINDOW_M`` of the ego
 (centre to centre, along the road). Warnings of one car separated by less than ``MERGE_S`` are
 one **warning run** ``[a, b]`` (the overlay holds a mark that long). A run is **true** when that
-car cuts in in front of the ego (one of the cut-ins counted here) at some moment in ``[a, b + H + 1 s]``:
-issue 19's rule, "a warned car that did not cut in within H + 1 s" is a false warning, with the run's
-last moment, as the study's overlay metrics count it (:mod:`dt_highway.metrics.overlay_metrics`). Up to
+car cuts in in front of the ego (one of the cut-ins counted here) at some moment in ``(a, b + H + 1 s]``:
+issue 19's rule, "a warned car that did not cut in within H + 1 s" is a false warning, the same cut-in
+test as the study's overlay metrics (:mod:`dt_highway.metrics.overlay_metrics`), which judge each mark
+from its onset instead of the run's last moment and leave out the marks of a trial's last H + 1 s. Up to
 2026-11-27 a run was true when the car's body overlapped the ego's lane at some moment of that interval,
 which also counted cars that entered the lane behind the ego, ahead of its leader or more than 60 m
 ahead, touched the lane and left, or were already in it when the run began; that rule's precision is
@@ -64,6 +65,7 @@ from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.intent_oracle import GIVES_CHASES, OpenAttempt, Oracle, OracleSettings, RevealedPicture
 from dt_highway.evaluation.twin import auc, episode_steps, uplink_settings, uplink_sweep_runs
 from dt_highway.labels import AGGRESSIVE
+from dt_highway.metrics.overlay_metrics import WARNING_LEAD_S
 from dt_highway.twin.chase import ChaseDetector, ChaseInputs, chase_inputs
 from dt_highway.twin.cloud import CloudTwin
 from dt_highway.twin.intention import (
@@ -80,7 +82,8 @@ from dt_highway.world.traffic import EGO_ID, CutInPolicy, driver_type, vehicle_i
 MERGE_S = 1.0
 """Warnings of one car this close in time are one warning run [s]"""
 LATE_S = 1.0
-"""A true run's car overlaps the ego's lane within H + this after the run's end [s]"""
+"""A run is true when its car cuts in within H + this after the run's end, and it warns a cut-in that comes at
+most that long after its end [s]"""
 DX_WINDOW_M = (-15.0, 65.0)
 """Warnings count for cars this far behind / ahead of the ego (centres, along the road) [m]"""
 THRESHOLDS = np.round(np.arange(0.05, 0.951, 0.025), 3)
@@ -107,15 +110,14 @@ CUT_IN_GAP_M = 60.0
 GAP_BANDS_M = (0.0, 10.0, 20.0, 40.0, CUT_IN_GAP_M)
 """The cut-ins' lead times are also given per band of bumper gap at their first overlap [m] (the closer a car
 cuts in, the less time headway the ego has without a warning)"""
-WARN_AHEAD_S = 1.5
-"""How far ahead of a cut-in a warning should start (the threat overlay's goal in issue 19) [s]"""
+WARN_AHEAD_S = WARNING_LEAD_S
+"""How far ahead of a cut-in a warning should start (the threat overlay's goal in issue 19, as the study counts
+it) [s]"""
 LATE_REASONS = ("below the threshold", "another lane predicted", "beyond the window", "not in the view",
-                "warned, then a break")
+                "warned, then a break", "before the first view")
 """Why a cut-in was not warned :data:`WARN_AHEAD_S` ahead, as seen in the car's view then (:func:`late_reasons`)"""
-VIEW_GAP_S = 0.5
-"""A car's last view sample at most this long before that moment still describes it [s]"""
-CURVE_KEYS = ("threshold", "precision", "recall", "median_lead_s", "share_warned_1.5s_ahead", "false_warnings_per_min",
-              "warning_time_share", "precision_lane_entry")
+CURVE_KEYS = ("threshold", "precision", "recall", "median_lead_s", f"share_warned_{WARN_AHEAD_S:g}s_ahead",
+              "false_warnings_per_min", "warning_time_share", "precision_lane_entry")
 """The figures of each threshold of the grid kept in a horizon's ``curve`` (the operating curve: what a choice of
 ``twin.intention.threshold`` or ``overlay.threshold`` trades)"""
 INTERVAL_LEVEL = 0.95
@@ -622,6 +624,16 @@ def view_samples(ep: Episode, probs: list[np.ndarray], k: int) -> ViewSamples:
     return ViewSamples(*cols)
 
 
+def _in_window(samples: ViewSamples) -> np.ndarray:
+    """Which view samples' cars are within :data:`DX_WINDOW_M` of the ego."""
+    return (samples.dx_m >= DX_WINDOW_M[0]) & (samples.dx_m <= DX_WINDOW_M[1])
+
+
+def _warns(samples: ViewSamples, threshold: float) -> np.ndarray:
+    """Which view samples predict a lane change into the ego's lane with ``p_change >= threshold``."""
+    return (samples.p_change >= threshold) & (samples.target == samples.ego_lane)
+
+
 def counted_cut_ins(ep: Episode) -> list[dict[str, Any]]:
     """The episode's cut-ins in front of the ego that are scored: bumper gap under :data:`CUT_IN_GAP_M`."""
     return [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
@@ -638,7 +650,7 @@ def runs_at(samples: ViewSamples, truth: Truth, cut_ins: Sequence[dict[str, Any]
     for c in cut_ins:
         cut_at.setdefault(int(c["vehicle_id"]), []).append(float(c["t_s"]))
     s = samples
-    warned = (s.p_change >= threshold) & (s.target == s.ego_lane) & (s.dx_m >= DX_WINDOW_M[0]) & (s.dx_m <= DX_WINDOW_M[1])
+    warned = _in_window(s) & _warns(s, threshold)
     vid, t0, t1 = s.vehicle_id[warned], s.t_s[warned], s.t_next_s[warned]
     order = np.lexsort((t0, vid))
     vid, t0, t1 = vid[order], t0[order], t1[order]
@@ -652,7 +664,7 @@ def runs_at(samples: ViewSamples, truth: Truth, cut_ins: Sequence[dict[str, Any]
     for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
         car, start, end = int(vid[a]), float(t0[a]), float(t1[a:b + 1].max())
         late = end + horizon_s + LATE_S
-        runs.append(Warning(car, start, end, any(start <= t <= late for t in cut_at.get(car, ())),
+        runs.append(Warning(car, start, end, any(start < t <= late for t in cut_at.get(car, ())),
                             truth.overlaps_between(car, start, late)))
     return runs
 
@@ -674,8 +686,13 @@ def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: 
 
 
 def warning_time_s(runs: Sequence[Warning], until_s: float = math.inf) -> float:
-    """How long at least one warning run was on before ``until_s`` [s]: the length of the union of the runs'
-    ``[start_s, end_s]`` (the runs of several cars overlap; each moment counts once)."""
+    """How long at least one warning run was on before ``until_s``: the length of the union of the runs'
+    ``[start_s, end_s]`` (the runs of several cars overlap; each moment counts once).
+
+    :param runs: the warning runs (sim times [s])
+    :param until_s: the end of the time counted (an episode's end) [s]
+    :return: the time with a warning on [s]
+    """
     total, reach = 0.0, -math.inf
     for start, end in sorted((w.start_s, min(w.end_s, until_s)) for w in runs if w.start_s < until_s):
         if end > reach:
@@ -686,11 +703,12 @@ def warning_time_s(runs: Sequence[Warning], until_s: float = math.inf) -> float:
 
 def late_reasons(cut_ins: Sequence[dict[str, Any]], leads: Sequence[float], samples: ViewSamples,
                  threshold: float) -> dict[str, int]:
-    """Why each cut-in not warned at least :data:`WARN_AHEAD_S` ahead was not, read from the car's last view sample
-    at or before ``WARN_AHEAD_S`` before its first overlap: its ``p_change`` was below ``threshold``; it was above
-    but the lane predicted was not the ego's (e.g. a car two lanes over moving into the middle lane first); its
-    twin position was outside :data:`DX_WINDOW_M`; the ego had no view of it in the :data:`VIEW_GAP_S` before; or it
-    was warned then, but the warning went away for :data:`MERGE_S` or longer and the lead counts from its return.
+    """Why each cut-in not warned at least :data:`WARN_AHEAD_S` ahead was not, read from the car in the view on
+    the ego's screen ``WARN_AHEAD_S`` before its first overlap (received then or before, not yet replaced): its
+    ``p_change`` was below ``threshold``; it was above but the lane predicted was not the ego's (e.g. a car two
+    lanes over moving into the middle lane first); its twin position was outside :data:`DX_WINDOW_M`; that view
+    did not have it; it was warned then, but the warning went away for :data:`MERGE_S` or longer and the lead
+    counts from its return; or that moment came before the episode's first view (``t < 0``).
 
     :param cut_ins: the cut-ins (``t_s``, ``vehicle_id``)
     :param leads: their lead times [s] (NaN: not warned), as :func:`cut_in_leads`
@@ -699,24 +717,21 @@ def late_reasons(cut_ins: Sequence[dict[str, Any]], leads: Sequence[float], samp
     :return: a count per reason of :data:`LATE_REASONS`
     """
     out = dict.fromkeys(LATE_REASONS, 0)
+    in_window, warns = _in_window(samples), _warns(samples, threshold)
     for c, lead in zip(cut_ins, leads, strict=True):
         if lead >= WARN_AHEAD_S:
             continue
         t = c["t_s"] - WARN_AHEAD_S
-        mine = np.flatnonzero((samples.vehicle_id == c["vehicle_id"]) & (samples.t_s <= t + 1e-9)
-                              & (samples.t_s > t - VIEW_GAP_S))
-        if not len(mine):
+        shown = np.flatnonzero((samples.vehicle_id == c["vehicle_id"]) & (samples.t_s <= t + 1e-9)
+                               & (samples.t_next_s > t + 1e-9))
+        if t < 0:
+            reason = "before the first view"
+        elif not len(shown):
             reason = "not in the view"
         else:
-            j = mine[np.argmax(samples.t_s[mine])]
-            if not DX_WINDOW_M[0] <= samples.dx_m[j] <= DX_WINDOW_M[1]:
-                reason = "beyond the window"
-            elif samples.p_change[j] < threshold:
-                reason = "below the threshold"
-            elif samples.target[j] != samples.ego_lane[j]:
-                reason = "another lane predicted"
-            else:
-                reason = "warned, then a break"
+            j = shown[-1]
+            reason = ("beyond the window" if not in_window[j] else "warned, then a break" if warns[j]
+                      else "below the threshold" if samples.p_change[j] < threshold else "another lane predicted")
         out[reason] += 1
     return out
 
@@ -756,7 +771,7 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
         n_entered += sum(w.entered for w in runs)
         leads = cut_in_leads(cuts, runs, horizon_s)
         for reason, n in late_reasons(cuts, leads, smp, threshold).items():
-            late[reason] = late.get(reason, 0) + n
+            late[reason] += n
         per_episode.append((np.array(leads, dtype=float), sum(w.true for w in runs), len(runs)))
         kinds += [c.get("maneuver") or "own" for c in cuts]
         decided += [c["t_s"] - c.get("t_decided_s", nan) for c in cuts]
@@ -953,6 +968,11 @@ def _settings(cfg: DTConfig) -> dict[str, Any]:
     return {**uplink_settings(cfg), "update_hz": cfg.twin.intention.update_hz}
 
 
+def _at_horizon(scores: dict[str, Any], horizon_s: float) -> dict[str, Any]:
+    """A model's cut-in scores at the horizon nearest ``horizon_s`` [s]."""
+    return min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+
+
 def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]:
     """The numbers of one model at the operating horizon: per-horizon AUCs, cut-in recall at precision
     >= 0.80, its median lead, and precision / recall / lead / share of cut-ins warned >= 1.5 s ahead at the
@@ -960,7 +980,7 @@ def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]
     name = model or result["configured_model"]
     s = result["models"][name]
     h = result["operating"]["horizon_s"]
-    ci = min(s["cut_ins"], key=lambda c: abs(c["horizon_s"] - h))
+    ci = _at_horizon(s, h)
     best = ci["best"] or {}
     longest = ci["longest_lead"] or {}
     op = ci["at_threshold"]
@@ -1038,7 +1058,7 @@ def format_intent(result: dict[str, Any]) -> list[str]:
 def _late_line(scores: dict[str, Any], horizon_s: float) -> list[str]:
     """The line of why cut-ins were not warned :data:`WARN_AHEAD_S` ahead at the operating threshold (none when
     the scores have no such counts, as a result of an older version)."""
-    op = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))["at_threshold"]
+    op = _at_horizon(scores, horizon_s)["at_threshold"]
     late = op.get("late_reasons")
     if not late:
         return []
@@ -1054,7 +1074,7 @@ CURVE_PRINTED = (0.15, 0.25, 0.35, 0.45, 0.55, 0.65, 0.75, 0.85)
 def _operating_curve(scores: dict[str, Any], horizon_s: float) -> list[str]:
     """The line of the operating curve: at each of :data:`CURVE_PRINTED`, what the warnings to the ego would be
     (none when the scores have no curve; ``-`` for a figure a result of an older version lacks)."""
-    ci = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+    ci = _at_horizon(scores, horizon_s)
     at = {round(g["threshold"], 3): g for g in ci.get("curve", [])}
     nan = math.nan
     cells = [f"{th:g}: {_f(g.get('precision', nan), 2)}, {_f(g.get('median_lead_s', nan), 2)} s, "
@@ -1108,7 +1128,7 @@ def _model_note(result: dict[str, Any], name: str) -> str:
 
 
 def _by_kind(scores: dict[str, Any], horizon_s: float) -> str:
-    ci = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+    ci = _at_horizon(scores, horizon_s)
     where = "at precision >= 0.80" if ci["best"] else "at the operating threshold"
     kinds = (ci["best"] or ci["at_threshold"])["by_maneuver"]
     cells = [f"{k} {v['n']}, {_f(v['median_lead_s'], 2)} s (decided {_f(v.get('median_decided_before_s', math.nan), 2)} s)"
@@ -1124,7 +1144,7 @@ def _range(v: list[float] | None, digits: int = 2, unit: str = "") -> str:
 def _by_gap_and_intervals(scores: dict[str, Any], horizon_s: float) -> list[str]:
     """The lines of the cut-ins by gap band and of the intervals (at precision >= 0.80 and at the operating
     threshold), when the scores have them."""
-    ci = min(scores["cut_ins"], key=lambda c: abs(c["horizon_s"] - horizon_s))
+    ci = _at_horizon(scores, horizon_s)
     chosen = ci["best"] or ci["at_threshold"]
     where = "at precision >= 0.80" if ci["best"] else "at the operating threshold"
     lines = []
