@@ -615,7 +615,8 @@ class IntentionConfig(_Section):
     threshold: float = Field(
         0.65, gt=0, lt=1, description="operating threshold: warn when P(change within the operating horizon) >= this "
         "(the lowest with cut-in warning precision >= 0.80 on 30 validation episodes from seed 2000 of "
-        "envs/highway-trial.toml, twin-eval --intent) [-]"
+        "envs/highway-trial.toml, twin-eval --intent, counting a warning right when its car entered the ego's lane; "
+        "counted as issue 19 does, right only when it cut in, no threshold reaches 0.80 there) [-]"
     )
     weights: str | None = Field(
         None, description="learned: weights file (.npz from dt-highway train-intent; None: the shipped weights; "
