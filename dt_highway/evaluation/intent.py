@@ -663,10 +663,15 @@ def runs_at(samples: ViewSamples, truth: Truth, cut_ins: Sequence[dict[str, Any]
     ends = np.r_[starts[1:], len(vid)] - 1
     for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
         car, start, end = int(vid[a]), float(t0[a]), float(t1[a:b + 1].max())
-        late = end + horizon_s + LATE_S
-        runs.append(Warning(car, start, end, any(start < t <= late for t in cut_at.get(car, ())),
-                            truth.overlaps_between(car, start, late)))
+        runs.append(Warning(car, start, end, any(_warns_of(start, end, t, horizon_s) for t in cut_at.get(car, ())),
+                            truth.overlaps_between(car, start, end + horizon_s + LATE_S)))
     return runs
+
+
+def _warns_of(start_s: float, end_s: float, t_s: float, horizon_s: float) -> bool:
+    """Whether a run ``[start_s, end_s]`` on a car warns of its cut-in at ``t_s`` (after the run began, at most
+    ``H + LATE_S`` after it ended): what makes a run true and a cut-in warned [s]."""
+    return start_s < t_s <= end_s + horizon_s + LATE_S
 
 
 def warning_runs(ep: Episode, truth: Truth, probs: list[np.ndarray], k: int, threshold: float,
@@ -680,7 +685,7 @@ def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: 
     leads = []
     for c in cut_ins:
         t_o, vid = c["t_s"], c["vehicle_id"]
-        starts = [w.start_s for w in runs if w.vehicle_id == vid and w.start_s < t_o <= w.end_s + horizon_s + LATE_S]
+        starts = [w.start_s for w in runs if w.vehicle_id == vid and _warns_of(w.start_s, w.end_s, t_o, horizon_s)]
         leads.append(t_o - max(starts) if starts else math.nan)
     return leads
 
