@@ -18,8 +18,13 @@ into the marks a driver sees:
   frames (one stray frame does not flash a mark);
 * it stays on its car while the fusion keeps placing it (the fusion's tracking keeps the
   vehicle on its track, so the box follows the car);
-* when the fusion stops placing it, the mark is held for ``hold_s`` at the box predicted
-  from its last movement (the box's velocity in the image), then removed.
+* when it stops qualifying (its tag or intention no longer marks it, or the fusion stops placing
+  it), the mark is held for ``hold_s``: on the car's box while the fusion still places it, else at
+  the box predicted from its last movement (the box's velocity in the image), then removed. A
+  prediction is trusted only while its size stays within half and twice the last box's
+  (:data:`PREDICTION_SIZE_RANGE`): a car pulling away or going out of the view shrinks or grows
+  faster than linearly, and a box moved on at its last velocity would invert or float into the
+  sky; the mark then ends early.
 
 Clutter (:func:`bound_marks`): at most ``overlay.max_marks`` of the steady marks are shown, threats
 first, then nearest first (by the distance the fusion measured); in ``type`` and ``threat`` all marks
@@ -64,6 +69,28 @@ THREAT_CUE, TYPE_CUE = "threat", "type"
 _DEFAULTS = OverlayConfig()
 
 
+PREDICTION_SIZE_RANGE = (0.5, 2.0)
+"""A held mark's predicted box is trusted while its width and height stay within these factors of the last
+box's [-]"""
+
+
+def predicted_box(box: np.ndarray, velocity_px_s: np.ndarray, age_s: float) -> np.ndarray | None:
+    """A held mark's box ``age_s`` after its car's last box, moved on at that box's image velocity, or ``None``
+    when the prediction is no longer trusted (its width or height outside :data:`PREDICTION_SIZE_RANGE` of
+    the last box's, an inverted box included).
+
+    :param box: the car's last box ``(x1, y1, x2, y2)`` [px]
+    :param velocity_px_s: the velocity of each of its edges [px/s]
+    :param age_s: time since that box [s]
+    """
+    if age_s <= 0:
+        return box
+    out = box + velocity_px_s * age_s
+    lo, hi = PREDICTION_SIZE_RANGE
+    size, size0 = out[2:] - out[:2], box[2:] - box[:2]
+    return out if bool(np.all((size >= lo * size0) & (size <= hi * size0))) else None
+
+
 @dataclass
 class _Mark:
     item: dict[str, Any]
@@ -72,6 +99,14 @@ class _Mark:
     streak: int = 1
     shown: bool = False
     last_seen_s: float = 0.0
+    box_t_s: float = 0.0
+
+    def follow(self, box: np.ndarray, t_s: float) -> None:
+        """The car's box at ``t_s`` (its image velocity from the box before)."""
+        gap = t_s - self.box_t_s
+        if gap > 0:
+            self.velocity_px_s = (box - self.box) / gap
+        self.box, self.box_t_s = box, t_s
 
 
 class OverlayStabilizer:
@@ -97,29 +132,32 @@ class OverlayStabilizer:
         self._marks.clear()
         self._t_s = None
 
-    def update(self, items: Sequence[dict[str, Any]], t_s: float) -> list[dict[str, Any]]:
+    def update(self, items: Sequence[dict[str, Any]], t_s: float,
+               placed: Mapping[int, Sequence[float]] | None = None) -> list[dict[str, Any]]:
         """One frame.
 
         :param items: the fusion's overlay items this frame (``vehicle_id``, ``box`` [px], ...)
         :param t_s: the frame's time [s]
-        :return: the marks to show: the items, each with ``held`` (``True`` when its vehicle
-            was not placed this frame and the box is predicted)
+        :param placed: the box [px] of every car the fusion placed this frame, by id (a held mark stays on its
+            car's box); ``None``: not known, a held mark's box is always predicted
+        :return: the marks to show: the items, each with ``held`` (``True`` when its vehicle no longer
+            qualifies or was not placed this frame: the box is its car's, or predicted)
         """
         dt = 0.0 if self._t_s is None else max(t_s - self._t_s, 0.0)
         self._t_s = t_s
         now = {int(it["vehicle_id"]): it for it in items}
+        placed = placed if placed is not None else {}
         for vid, it in now.items():
             box = np.asarray(it["box"], dtype=float)
             mark = self._marks.get(vid)
             if mark is None:
-                self._marks[vid] = _Mark(dict(it), box, last_seen_s=t_s)
+                self._marks[vid] = _Mark(dict(it), box, last_seen_s=t_s, box_t_s=t_s)
                 continue
             gap = t_s - mark.last_seen_s
             fresh = gap > 0 and gap <= dt + 1e-9  # placed in the previous frame too
-            if gap > 0:
-                mark.velocity_px_s = (box - mark.box) / gap
             mark.streak = mark.streak + 1 if fresh else 1
-            mark.item, mark.box, mark.last_seen_s = dict(it), box, t_s
+            mark.follow(box, t_s)
+            mark.item, mark.last_seen_s = dict(it), t_s
         out = []
         for vid in list(self._marks):
             mark = self._marks[vid]
@@ -128,12 +166,15 @@ class OverlayStabilizer:
                 if mark.shown:
                     out.append({**mark.item, "held": False})
                 continue
-            age = t_s - mark.last_seen_s
-            if not mark.shown or age > self.hold_s:
+            held: np.ndarray | None = None
+            if mark.shown and t_s - mark.last_seen_s <= self.hold_s:
+                if vid in placed:
+                    mark.follow(np.asarray(placed[vid], dtype=float), t_s)
+                held = predicted_box(mark.box, mark.velocity_px_s, t_s - mark.box_t_s)
+            if held is None:
                 del self._marks[vid]
                 continue
-            box = mark.box + mark.velocity_px_s * age
-            out.append({**mark.item, "box": [float(b) for b in box], "held": True})
+            out.append({**mark.item, "box": [float(b) for b in held], "held": True})
         return out
 
 
@@ -253,7 +294,8 @@ class ShamOverlay:
       the twin's tag or intention, and not the real mark's car either: it can be drawn too);
     * the slot car keeps the mark for as long as the real mark is shown; when the fusion stops
       placing the slot car, the sham mark is held at its predicted box like a real one
-      (``hold_s``), and after that a new car is drawn (the car left the view);
+      (``hold_s``, ending early when the prediction is no longer trusted: :func:`predicted_box`),
+      and after that a new car is drawn (the car left the view);
     * the sham mark carries the real mark's label and cue (type or threat, the "aggressive driver"
       part, the percentage shown), with the box, distance and, for a threat cue, the side
       (left or right of the ego's lane) of its own car.
@@ -293,7 +335,7 @@ class ShamOverlay:
             s = self._slots[rid]
             car = cars.get(s.car)
             if car is None:
-                if t_s - s.last_seen_s > self.hold_s:
+                if t_s - s.last_seen_s > self.hold_s or predicted_box(s.box, s.velocity_px_s, t_s - s.last_seen_s) is None:
                     del self._slots[rid]
                 continue
             box = np.asarray(car["box"], dtype=float)
@@ -338,7 +380,8 @@ class ShamOverlay:
     @staticmethod
     def _item(real: Mapping[str, Any], s: _Slot, t_s: float) -> dict[str, Any]:
         age = t_s - s.last_seen_s
-        box = s.box + s.velocity_px_s * age if age > 0 else s.box
+        box = predicted_box(s.box, s.velocity_px_s, age)  # trusted: _follow dropped the slot otherwise
+        box = s.box if box is None else box
         item = {**real, "vehicle_id": s.car, "box": [float(b) for b in box], "distance_m": s.distance_m,
                 "rule": s.rule, "held": age > 0}
         if real.get("cue") == THREAT_CUE:
@@ -386,7 +429,11 @@ class Banner(NamedTuple):
     moved: bool
 
 
-def _overlaps(r: tuple[int, int, int, int], placed: Sequence[tuple[int, int, int, int]]) -> list[int]:
+Rect = tuple[int, int, int, int]
+"""A rectangle ``(x, y, w, h)`` on the image [px]"""
+
+
+def _overlaps(r: Rect, placed: Sequence[Rect]) -> list[int]:
     x, y, w, h = r
     return [i for i, (ox, oy, ow, oh) in enumerate(placed) if x < ox + ow and ox < x + w and y < oy + oh and oy < y + h]
 
@@ -402,12 +449,14 @@ def _text_size(head: str, sub: str, scale: float) -> tuple[int, int, int, int, i
 
 
 def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, full_labels: int = 2,
-                 label_range_m: float = 60.0) -> list[Banner]:
-    """Where the marks' boxes and labels go: no two labels overlap, and none is stacked more
-    than one label high.
+                 label_range_m: float = 60.0, keep_out: Sequence[Rect] = ()) -> list[Banner]:
+    """Where the marks' boxes and labels go: no two labels overlap, none is stacked more than one
+    label high, and none goes under what the screen draws over the picture (``keep_out``).
 
     Labels are placed in priority order (threats first, then nearest first). A label sits just
-    above its box (below it when there is no room above). The ``full_labels`` first ones within
+    above its box; when there is no room above (the image's top edge, or a ``keep_out`` area such
+    as the driving window's mirror or trial label), at the top inside the box when the box is tall
+    enough (a car close by), else just below the box. The ``full_labels`` first ones within
     ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or "<< CUTTING IN", confidence,
     distance), the others a small "!" tag. A label that would overlap one already placed is
     moved up once, just above the one in the way, and joined to its box by a leader line; if it
@@ -420,6 +469,7 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     :param height: image height [px]
     :param full_labels: most marks with the full label [-]
     :param label_range_m: farthest distance of a full label [m]
+    :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (drawn over the picture later)
     :return: one banner per mark whose box is on the image, in priority order
     """
     scale = max(height / 720.0, 0.3)  # text and lines grow with the picture
@@ -443,24 +493,50 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
             head, sub = "!", ""
         bw, bh, pad, _, _, _ = _text_size(head, sub, scale)
         bx = int(np.clip((p1[0] + p2[0]) / 2 - bw / 2, 0, max(width - bw, 0)))
-        by = p1[1] - bh - thick
-        if by < 0:  # no room above the box: below it
-            by = min(p2[1] + thick, height - bh)
-        rect: tuple[int, int, int, int] | None = (bx, by, bw, bh)
-        moved = False
-        in_way = _overlaps((bx, by, bw, bh), placed)
-        if in_way:  # once up, above the labels in the way; else dropped
-            by = min(placed[j][1] for j in in_way) - bh - pad
-            moved = True
-            rect = (bx, by, bw, bh) if by >= 0 and not _overlaps((bx, by, bw, bh), placed) else None
+        rect, moved = _place_label(bx, bw, bh, (p1[1], p2[1]), (thick, pad), height, placed, keep_out)
         if rect is not None:
             placed.append(rect)
-        out.append(Banner(i, (p1[0], p1[1], p2[0], p2[1]), rect, head, sub, moved and rect is not None))
+        out.append(Banner(i, (p1[0], p1[1], p2[0], p2[1]), rect, head, sub, moved))
     return out
 
 
+def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[int, int], height: int,
+                 placed: Sequence[Rect], keep_out: Sequence[Rect]) -> tuple[Rect | None, bool]:
+    """A label's rectangle (:func:`label_layout`), ``None`` when dropped, and whether it was moved up past
+    another label.
+
+    :param bx: the label's left edge [px]
+    :param bw: its width [px]
+    :param bh: its height [px]
+    :param box_y: the top and bottom of its box, clipped to the image [px]
+    :param gaps: the line thickness (label to box) and the label's padding (label to label) [px]
+    :param height: image height [px]
+    :param placed: the labels placed so far
+    :param keep_out: the areas no label may cover
+    """
+    (top, bottom), (thick, pad) = box_y, gaps
+
+    def free(by: int) -> bool:
+        r = (bx, by, bw, bh)
+        return 0 <= by <= height - bh and not _overlaps(r, placed) and not _overlaps(r, keep_out)
+
+    above = top - bh - thick
+    if 0 <= above and not _overlaps((bx, above, bw, bh), keep_out):
+        in_way = _overlaps((bx, above, bw, bh), placed)
+        if not in_way:
+            return (bx, above, bw, bh), False
+        up = min(placed[j][1] for j in in_way) - bh - pad  # once up, above the labels in the way; else dropped
+        return ((bx, up, bw, bh), True) if free(up) else (None, False)
+    # no room above the box: inside it, as high as is free (its top, or just below an area or label in the
+    # way), when the box is tall enough; else below it
+    below_others = [y + h + thick for x, y, w, h in (*keep_out, *placed) if x < bx + bw and bx < x + w]
+    inside = sorted(y for y in {top + thick, *below_others} if top + thick <= y <= bottom - thick - bh)
+    return next((((bx, by, bw, bh), False) for by in (*inside, min(bottom + thick, height - bh)) if free(by)),
+                (None, False))
+
+
 def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
-                 full_labels: int = 2, label_range_m: float = 60.0) -> np.ndarray:
+                 full_labels: int = 2, label_range_m: float = 60.0, keep_out: Sequence[Rect] = ()) -> np.ndarray:
     """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label above it on a
     filled banner, sized to the image (:func:`label_layout`: no towers of labels). Threat marks
     ("<< CUTTING IN", the side it comes from) are amber (:data:`THREAT_RGB`), the others ``colour``.
@@ -470,13 +546,15 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tu
     :param colour: the colour of the driver-type marks (RGB)
     :param full_labels: most marks with the full label [-]
     :param label_range_m: farthest distance of a full label [m]
+    :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (what the screen draws over the
+        picture afterwards: the driving window's mirror, trial label and HUD band)
     :return: the annotated frame (same shape)
     """
     out = np.ascontiguousarray(rgb).copy()
     h, w = out.shape[:2]
     scale = max(h / 720.0, 0.3)
     font = cv2.FONT_HERSHEY_DUPLEX
-    banners = label_layout(items, w, h, full_labels, label_range_m)
+    banners = label_layout(items, w, h, full_labels, label_range_m, keep_out)
     for b in banners:
         c = THREAT_RGB if items[b.mark].get("cue") == THREAT_CUE else colour
         cv2.rectangle(out, b.box[:2], b.box[2:], c, max(1, round(3 * scale)), cv2.LINE_AA)

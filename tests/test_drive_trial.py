@@ -485,6 +485,18 @@ def test_compose_frame_never_draws_the_condition(monkeypatch):
     assert "Trial 1" in texts and not any("adas" in t.lower() or "baseline" in t.lower() for t in texts)
 
 
+def test_a_near_cars_warning_is_not_hidden_under_the_mirror_or_the_trial_label():
+    """A car close by, its box reaching the top of the picture: the label goes inside the box below the
+    mirror and the trial's label (drawn over the picture afterwards), so its amber banner is seen."""
+    from dt_highway.overlay import THREAT_RGB
+    mark = {"vehicle_id": 1, "box": [0.0, 40.0, 220.0, 300.0], "label": "cutting in from left", "confidence": 0.8,
+            "distance_m": 5.0, "cue": "threat", "side": "left"}
+    img = compose_frame(np.full((360, 640, 3), 90, np.uint8), [mark], Hud(40.0, 2, 3, 30.0, "Trial 1"),
+                        mirror=np.zeros((60, 380, 3), np.uint8))
+    inside = (img[46:294, 6:214] == THREAT_RGB).all(axis=-1)  # within the box's outline
+    assert inside.sum() > 1500  # the banner's fill (about 150 x 35 px); above the box it would be hidden
+
+
 # ------------------------------------------------------------------------------------------ a wheel (issue 20)
 WHEEL_CAL = {"device": "test wheel",  # throttle resting at -1 (pressed: +1), brake resting at +1 (pressed: -1)
              "steer": {"axis": 0, "min": -1.0, "centre": 0.0, "max": 1.0, "deadzone": 0.0},

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dt_highway.overlay import MARK_RGB, OverlayStabilizer, draw_overlay
+from dt_highway.overlay import MARK_RGB, OverlayStabilizer, draw_overlay, predicted_box
 
 
 def _item(vid, box, dist=30.0):
@@ -48,3 +48,30 @@ def test_draw_overlay_marks_the_box_and_a_label_and_leaves_the_input_alone():
     assert (banner == MARK_RGB).all(axis=-1).mean() > 0.3 and (banner == 255).all(axis=-1).any()  # label above
     assert (out[:50, :50] == 90).all()  # a box off the image draws nothing
     assert np.array_equal(draw_overlay(rgb, []), rgb)
+
+
+def test_a_held_mark_stays_on_its_car_while_the_fusion_places_it():
+    """A car that stops qualifying (no longer a threat) but is still placed keeps its mark on its own box."""
+    st = OverlayStabilizer(onset_frames=1, hold_s=1.0)
+    st.update([_item(7, (100, 100, 140, 130))], 0.0)
+    st.update([_item(7, (110, 100, 150, 130))], 0.1)  # moving right at 100 px/s
+    (held,) = st.update([], 0.2, placed={7: (100, 90, 150, 140)})  # placed, not qualifying: the car's box
+    assert held["held"] and held["box"] == [100, 90, 150, 140]
+    (held,) = st.update([], 0.3)  # then lost: predicted from the last two boxes (-100 px/s, -100 / +100 px/s)
+    assert held["box"] == pytest.approx([90, 80, 150, 150])
+    assert st.update([], 1.3) == []  # the hold counts from the last frame it qualified
+
+
+def test_a_held_mark_ends_when_its_predicted_box_is_no_longer_a_car_box():
+    """A car pulling away shrinks fast: a box moved on at its last edge velocities would invert; the mark ends
+    once its predicted width or height falls below half the last box's (or grows past twice it)."""
+    st = OverlayStabilizer(onset_frames=1, hold_s=1.0)
+    st.update([_item(7, (100, 100, 200, 180))], 0.0)
+    st.update([_item(7, (110, 105, 190, 175))], 0.1)  # width 80 px, shrinking 200 px/s
+    (held,) = st.update([], 0.2)
+    assert held["box"] == pytest.approx([120, 110, 180, 170])  # width 60: trusted
+    assert st.update([], 0.3)[0]["box"] == pytest.approx([130, 115, 170, 165])  # width 40: half, the edge
+    assert st.update([], 0.35) == []  # width 30: no longer trusted, the mark ends (the hold had 0.75 s left)
+    assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, -100, 0]), 0.2) is None  # inverted
+    assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, 100, 0]), 0.05) is not None
+    assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, 100, 0]), 0.2) is None  # 3 times as wide

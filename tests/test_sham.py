@@ -146,3 +146,20 @@ def test_the_sham_condition_in_the_env_shows_as_many_marks_as_the_hidden_real_ov
             break
     env.close()
     assert shown > 0 and same >= 28
+
+
+def test_a_sham_mark_whose_predicted_box_is_no_longer_trusted_moves_to_another_car():
+    """Like a real held mark, a sham mark on a lost car ends once its predicted box shrinks below half its last
+    size (a car pulling away), and the still-shown real mark gets a new car at once."""
+    sham = ShamOverlay(np.random.default_rng(0), hold_s=1.0)
+    cars = {c: {"box": [100.0 * c, 100.0, 100.0 * c + 80, 160.0], "distance_m": 20.0 + c, "rule": "joint",
+                "side": "left"} for c in range(3)}
+    real = [{"vehicle_id": 99, "box": [0, 0, 1, 1], "label": "aggressive driver", "distance_m": 30.0, "cue": "type"}]
+    car = sham.update(real, cars, 0.0)[0]["vehicle_id"]
+    shrinking = {**cars, car: {**cars[car], "box": [100.0 * car + 10, 105.0, 100.0 * car + 70, 155.0]}}
+    sham.update(real, shrinking, 0.1)  # width 80 -> 60 px in 0.1 s
+    gone = {c: v for c, v in cars.items() if c != car}
+    (held,) = sham.update(real, gone, 0.15)  # predicted width 50 of 60: still trusted
+    assert held["vehicle_id"] == car and held["held"]
+    (moved,) = sham.update(real, gone, 0.3)  # predicted width 20 of 60: another car, well within the hold
+    assert moved["vehicle_id"] != car and not moved["held"]

@@ -166,6 +166,28 @@ def test_labels_never_stack_into_towers():
             assert not (x < ox + ow and ox < x + w and y < oy + oh and oy < y + h)
 
 
+def test_labels_keep_out_of_what_the_screen_draws_over_the_picture():
+    """A car close by whose box reaches the top of the picture: its label goes inside the box, below the areas
+    the window draws over it (mirror, trial label), not under them; a small box with no room above or inside
+    gets its label below it; with nowhere free the label is dropped, the box kept."""
+    def rects_meet(a, b):
+        return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+    mirror, badge = (150, 0, 340, 70), (5, 5, 60, 25)
+    near = {"vehicle_id": 1, "box": [0.0, 40.0, 200.0, 300.0], "label": threat_label("left", True), "confidence": 0.8,
+            "distance_m": 5.0, "cue": "threat", "side": "left"}
+    (banner,) = label_layout([near], 640, 360, keep_out=[mirror, badge])
+    assert banner.label is not None and not banner.moved
+    assert not rects_meet(banner.label, mirror) and not rects_meet(banner.label, badge)
+    assert 40 < banner.label[1] and banner.label[1] + banner.label[3] < 300  # inside its box
+    (free,) = label_layout([near], 640, 360)  # nothing drawn over the picture: above the box, as before
+    assert free.label is not None and free.label[1] + free.label[3] <= 40
+    small = {**near, "box": [250.0, 72.0, 290.0, 100.0]}  # just below the mirror, too small to hold its label
+    (below,) = label_layout([small], 640, 360, keep_out=[mirror])
+    assert below.label is not None and below.label[1] > 100
+    (dropped,) = label_layout([small], 640, 360, keep_out=[mirror, (0, 100, 640, 260)])
+    assert dropped.label is None and dropped.box == (250, 72, 290, 100)
+
+
 def test_a_threat_mark_is_drawn_amber_with_its_side():
     rgb = np.full((360, 640, 3), 90, np.uint8)
     threat = {"vehicle_id": 1, "box": [300, 200, 380, 260], "label": threat_label("left", False), "confidence": 0.8,

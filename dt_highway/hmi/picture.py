@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from dt_highway.hmi.screens import _AMBER, PAUSE_LINES, _scale, _text, dialog
-from dt_highway.overlay import draw_overlay
+from dt_highway.overlay import Rect, draw_overlay
 
 MIRROR_FRACTION = (0.6, 0.17)
 """The mirror image's size asked for, as fractions of the frame's width and height"""
@@ -52,15 +52,17 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     :param mirror: the rear-view mirror image ``uint8 (h, w, 3)``, or ``None``; drawn at the top centre
     :return: ``uint8 (H, W, 3)`` RGB
     """
-    out = draw_overlay(rgb, marks) if marks else np.ascontiguousarray(rgb).copy()
-    h, w = out.shape[:2]
+    h, w = rgb.shape[:2]
     s = _scale(h)
     pad = int(16 * s)
     t1, t2, t4 = max(1, round(1.5 * s)), max(1, round(2 * s)), max(1, round(4 * s))
+    band_h = hud_band_height((w, h), minimap)
+    badge, mirror_at = _badge_rect(hud.label, h), _mirror_rect((w, h), mirror, pad)
+    keep_out = [(0, h - band_h, w, band_h), badge] + ([mirror_at] if mirror_at is not None else [])
+    out = draw_overlay(rgb, marks, keep_out=keep_out) if marks else np.ascontiguousarray(rgb).copy()
     small = None
     if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
         small = cv2.resize(minimap, _minimap_size(w, minimap), interpolation=cv2.INTER_AREA)
-    band_h = hud_band_height((w, h), minimap)
     band = out[h - band_h:, :]
     band[:] = (band * 0.45).astype(np.uint8)
     base = h - band_h // 2
@@ -74,14 +76,35 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
         x0, y0 = w - tw - pad, h - band_h + (band_h - th) // 2
         out[y0:y0 + th, x0:x0 + tw] = small
         cv2.rectangle(out, (x0 - 1, y0 - 1), (x0 + tw, y0 + th), (200, 200, 200), 1)
-    if mirror is not None:
-        _draw_mirror(out, mirror, pad)
-    (cw, ch), _ = cv2.getTextSize(hud.label, cv2.FONT_HERSHEY_DUPLEX, 0.9 * s, t1)
-    cv2.rectangle(out, (pad // 2, pad // 2), (pad + cw + pad // 2, pad + ch + pad // 2), (0, 0, 0), -1)
-    _text(out, hud.label, (pad, pad + ch), 0.9 * s, _AMBER, thick=t1, shadow=False)
+    if mirror is not None and mirror_at is not None:
+        _draw_mirror(out, mirror, mirror_at)
+    bx, by, bw, bh = badge
+    cv2.rectangle(out, (bx, by), (bx + bw, by + bh), (0, 0, 0), -1)
+    _text(out, hud.label, (pad, by + bh - pad // 2), 0.9 * s, _AMBER, thick=t1, shadow=False)
     if hud.paused:
         dialog(out, PAUSE_LINES)
     return out
+
+
+def _badge_rect(label: str, h: int) -> Rect:
+    """Where the trial's label goes, top left of a frame ``h`` pixels high: ``(x, y, w, h)`` [px]."""
+    s = _scale(h)
+    pad = int(16 * s)
+    (cw, ch), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_DUPLEX, 0.9 * s, max(1, round(1.5 * s)))
+    return pad // 2, pad // 2, pad + cw, pad + ch
+
+
+def _mirror_rect(size: tuple[int, int], mirror: np.ndarray | None, pad: int) -> Rect | None:
+    """Where the rear-view mirror goes, frame included, at the top centre of a frame of ``size`` ``(w, h)``:
+    ``(x, y, w, h)`` [px], ``None`` without a mirror (or an empty one)."""
+    if mirror is None:
+        return None
+    w, h = size
+    mh, mw = np.asarray(mirror)[: h // 2, : w - 2 * pad].shape[:2]
+    if mh == 0 or mw == 0:
+        return None
+    x0, y0 = (w - mw) // 2, max(pad // 2, 2)
+    return x0 - 2, y0 - 2, mw + 4, mh + 4
 
 
 def _minimap_size(w: int, minimap: np.ndarray) -> tuple[int, int]:
@@ -105,13 +128,9 @@ def hud_band_height(size: tuple[int, int], minimap: np.ndarray | None = None) ->
     return max(int(110 * s), _minimap_size(w, minimap)[1] + 2 * int(16 * s))
 
 
-def _draw_mirror(out: np.ndarray, mirror: np.ndarray, pad: int) -> None:
-    """The rear-view mirror at the top centre of ``out`` (in place), framed, clipped to the frame."""
-    h, w = out.shape[:2]
-    img = np.asarray(mirror)[: h // 2, : w - 2 * pad, :3]
-    mh, mw = img.shape[:2]
-    if mh == 0 or mw == 0:
-        return
-    x0, y0 = (w - mw) // 2, max(pad // 2, 2)
-    out[y0:y0 + mh, x0:x0 + mw] = img
-    cv2.rectangle(out, (x0 - 2, y0 - 2), (x0 + mw + 1, y0 + mh + 1), (20, 20, 20), 2)
+def _draw_mirror(out: np.ndarray, mirror: np.ndarray, at: Rect) -> None:
+    """The rear-view mirror in ``out`` (in place), framed, at ``at`` (:func:`_mirror_rect`)."""
+    x, y, rw, rh = at
+    mh, mw = rh - 4, rw - 4
+    out[y + 2:y + 2 + mh, x + 2:x + 2 + mw] = np.asarray(mirror)[:mh, :mw, :3]
+    cv2.rectangle(out, (x, y), (x + rw - 1, y + rh - 1), (20, 20, 20), 2)
