@@ -781,7 +781,8 @@ class OverlayConfig(_Section):
     """
 
     onset_frames: int = Field(2, ge=1, le=100, description="consecutive fusion frames before a mark shows [-]")
-    hold_s: float = Field(1.0, ge=0, le=10, description="a mark stays this long after its vehicle is lost [s]")
+    hold_s: float = Field(1.0, ge=0, le=10,
+                          description="a mark stays this long after its vehicle stops qualifying or is lost [s]")
     mode: Literal["type", "threat", "both"] = Field("type", description="which cars are marked: type, threat or both")
     horizon_s: float | None = Field(None, gt=0, le=10, description="threat: the intention horizon read (the twin's "
                                     "nearest; None: twin.intention.operating_horizon_s) [s]")

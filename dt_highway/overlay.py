@@ -79,15 +79,19 @@ def predicted_box(box: np.ndarray, velocity_px_s: np.ndarray, age_s: float) -> n
     when the prediction is no longer trusted (its width or height outside :data:`PREDICTION_SIZE_RANGE` of
     the last box's, an inverted box included).
 
-    :param box: the car's last box ``(x1, y1, x2, y2)`` [px]
+    :param box: the car's last box ``(x1, y1, x2, y2)`` [px] (``None`` is returned for one that is not a box:
+        not finite, or no width or height)
     :param velocity_px_s: the velocity of each of its edges [px/s]
     :param age_s: time since that box [s]
     """
+    size0 = box[2:] - box[:2]
+    if not (np.all(np.isfinite(box)) and np.all(size0 > 0)):
+        return None
     if age_s <= 0:
         return box
     out = box + velocity_px_s * age_s
     lo, hi = PREDICTION_SIZE_RANGE
-    size, size0 = out[2:] - out[:2], box[2:] - box[:2]
+    size = out[2:] - out[:2]
     return out if bool(np.all((size >= lo * size0) & (size <= hi * size0))) else None
 
 
@@ -102,7 +106,7 @@ class _Mark:
     box_t_s: float = 0.0
 
     def follow(self, box: np.ndarray, t_s: float) -> None:
-        """The car's box at ``t_s`` (its image velocity from the box before)."""
+        """The car's box at ``t_s`` [px] (its image velocity from the box before)."""
         gap = t_s - self.box_t_s
         if gap > 0:
             self.velocity_px_s = (box - self.box) / gap
@@ -113,7 +117,8 @@ class OverlayStabilizer:
     """Steady marks from the fusion's per-frame overlay items (module docstring).
 
     :param onset_frames: consecutive frames a vehicle must be placed in before its mark shows [-]
-    :param hold_s: how long a shown mark stays after the fusion stops placing its vehicle [s]
+    :param hold_s: how long a shown mark stays after its vehicle stops qualifying (no longer among the items:
+        no longer marked, or not placed) [s]
 
     Defaults and ranges are the ``overlay`` section's (:class:`~dt_highway.config.OverlayConfig`).
 
@@ -133,13 +138,14 @@ class OverlayStabilizer:
         self._t_s = None
 
     def update(self, items: Sequence[dict[str, Any]], t_s: float,
-               placed: Mapping[int, Sequence[float]] | None = None) -> list[dict[str, Any]]:
+               placed: Mapping[int, Mapping[str, Any]] | None = None) -> list[dict[str, Any]]:
         """One frame.
 
         :param items: the fusion's overlay items this frame (``vehicle_id``, ``box`` [px], ...)
         :param t_s: the frame's time [s]
-        :param placed: the box [px] of every car the fusion placed this frame, by id (a held mark stays on its
-            car's box); ``None``: not known, a held mark's box is always predicted
+        :param placed: every car the fusion placed this frame, by id: its ``box`` [px] and ``distance_m`` [m]
+            (and ``rule``); a held mark stays on its car's box and shows its distance now; ``None``: not known,
+            a held mark's box is always predicted
         :return: the marks to show: the items, each with ``held`` (``True`` when its vehicle no longer
             qualifies or was not placed this frame: the box is its car's, or predicted)
         """
@@ -168,8 +174,10 @@ class OverlayStabilizer:
                 continue
             held: np.ndarray | None = None
             if mark.shown and t_s - mark.last_seen_s <= self.hold_s:
-                if vid in placed:
-                    mark.follow(np.asarray(placed[vid], dtype=float), t_s)
+                car = placed.get(vid)
+                if car is not None:
+                    mark.follow(np.asarray(car["box"], dtype=float), t_s)
+                    mark.item.update({k: car[k] for k in ("distance_m", "rule") if k in car})
                 held = predicted_box(mark.box, mark.velocity_px_s, t_s - mark.box_t_s)
             if held is None:
                 del self._marks[vid]
@@ -458,9 +466,10 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     as the driving window's mirror or trial label), at the top inside the box when the box is tall
     enough (a car close by), else just below the box. The ``full_labels`` first ones within
     ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or "<< CUTTING IN", confidence,
-    distance), the others a small "!" tag. A label that would overlap one already placed is
-    moved up once, just above the one in the way, and joined to its box by a leader line; if it
-    still overlaps a label, or leaves the image, it is **dropped**: its box is drawn without a
+    distance), the others a small "!" tag. A label above or below its box that would overlap one
+    already placed is moved up once, just above the one in the way, and joined to its box by a leader
+    line; if it still overlaps a label or a ``keep_out`` area, or leaves the image, it is **dropped**
+    (as is one with no free place inside or below its box): its box is drawn without a
     label (a farther or lower-priority car keeps its box; the warning of the car before it is
     the one that is read). So labels never build towers.
 
@@ -531,13 +540,18 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
     # way), when the box is tall enough; else below it
     below_others = [y + h + thick for x, y, w, h in (*keep_out, *placed) if x < bx + bw and bx < x + w]
     inside = sorted(y for y in {top + thick, *below_others} if top + thick <= y <= bottom - thick - bh)
-    return next((((bx, by, bw, bh), False) for by in (*inside, min(bottom + thick, height - bh)) if free(by)),
-                (None, False))
+    below = min(bottom + thick, height - bh)
+    chosen = next((by for by in (*inside, below) if free(by)), None)
+    if chosen is not None:
+        return (bx, chosen, bw, bh), False
+    in_way = _overlaps((bx, below, bw, bh), placed)  # below, in the way of labels: once up past them, as above
+    up = min(placed[j][1] for j in in_way) - bh - pad if in_way else -1
+    return ((bx, up, bw, bh), True) if in_way and free(up) else (None, False)
 
 
 def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
                  full_labels: int = 2, label_range_m: float = 60.0, keep_out: Sequence[Rect] = ()) -> np.ndarray:
-    """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label above it on a
+    """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label by it (above, inside or below) on a
     filled banner, sized to the image (:func:`label_layout`: no towers of labels). Threat marks
     ("<< CUTTING IN", the side it comes from) are amber (:data:`THREAT_RGB`), the others ``colour``.
 

@@ -51,15 +51,28 @@ def test_draw_overlay_marks_the_box_and_a_label_and_leaves_the_input_alone():
 
 
 def test_a_held_mark_stays_on_its_car_while_the_fusion_places_it():
-    """A car that stops qualifying (no longer a threat) but is still placed keeps its mark on its own box."""
+    """A car that stops qualifying (no longer a threat) but is still placed keeps its mark on its own box, with
+    the distance measured now."""
     st = OverlayStabilizer(onset_frames=1, hold_s=1.0)
     st.update([_item(7, (100, 100, 140, 130))], 0.0)
     st.update([_item(7, (110, 100, 150, 130))], 0.1)  # moving right at 100 px/s
-    (held,) = st.update([], 0.2, placed={7: (100, 90, 150, 140)})  # placed, not qualifying: the car's box
-    assert held["held"] and held["box"] == [100, 90, 150, 140]
+    (held,) = st.update([], 0.2, placed={7: {"box": (100, 90, 150, 140), "distance_m": 25.0}})  # placed
+    assert held["held"] and held["box"] == [100, 90, 150, 140] and held["distance_m"] == 25.0
     (held,) = st.update([], 0.3)  # then lost: predicted from the last two boxes (-100 px/s, -100 / +100 px/s)
     assert held["box"] == pytest.approx([90, 80, 150, 150])
-    assert st.update([], 1.3) == []  # the hold counts from the last frame it qualified
+
+
+def test_the_hold_counts_from_the_last_frame_the_mark_qualified():
+    """Still boxes (a prediction always trusted): the mark goes hold_s after it last qualified, however long the
+    fusion kept placing its car after that."""
+    st = OverlayStabilizer(onset_frames=1, hold_s=1.0)
+    box = (100, 100, 140, 130)
+    st.update([_item(7, box)], 0.0)
+    st.update([_item(7, box)], 0.1)  # qualifies last at 0.1
+    for t in (0.2, 0.3, 0.4, 0.5):
+        assert st.update([], t, placed={7: {"box": box, "distance_m": 30.0}})[0]["held"]
+    assert st.update([], 1.05) != []  # 0.95 s after it last qualified (0.55 s after it was last placed)
+    assert st.update([], 1.15) == []  # 1.05 s after
 
 
 def test_a_held_mark_ends_when_its_predicted_box_is_no_longer_a_car_box():
@@ -70,8 +83,11 @@ def test_a_held_mark_ends_when_its_predicted_box_is_no_longer_a_car_box():
     st.update([_item(7, (110, 105, 190, 175))], 0.1)  # width 80 px, shrinking 200 px/s
     (held,) = st.update([], 0.2)
     assert held["box"] == pytest.approx([120, 110, 180, 170])  # width 60: trusted
-    assert st.update([], 0.3)[0]["box"] == pytest.approx([130, 115, 170, 165])  # width 40: half, the edge
+    (held,) = st.update([], 0.275)
+    assert held["box"][2] - held["box"][0] == pytest.approx(45)  # width 45: still over half
     assert st.update([], 0.35) == []  # width 30: no longer trusted, the mark ends (the hold had 0.75 s left)
     assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, -100, 0]), 0.2) is None  # inverted
     assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, 100, 0]), 0.05) is not None
     assert predicted_box(np.array([0.0, 0, 10, 10]), np.array([0.0, 0, 100, 0]), 0.2) is None  # 3 times as wide
+    assert predicted_box(np.array([0.0, 0, np.nan, 10]), np.zeros(4), 0.0) is None  # not a box, even now
+    assert predicted_box(np.array([5.0, 0, 5, 10]), np.zeros(4), 0.0) is None  # no width

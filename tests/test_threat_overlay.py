@@ -166,6 +166,20 @@ def test_labels_never_stack_into_towers():
             assert not (x < ox + ow and ox < x + w and y < oy + oh and oy < y + h)
 
 
+def test_a_threat_mark_held_after_its_warning_ends_stays_on_its_car():
+    """The pipeline gives the stabiliser the fusion's placements: a car whose threat ends while it is still
+    placed keeps its mark for the hold on its own box, at the distance measured now."""
+    pipe = pipeline(mode="threat", threshold=0.5, horizon_s=3.0, onset_frames=1)
+    t = 0.0
+    for k in range(3):
+        t = k * DT
+        out = step(pipe, [view(2, y_m=0.3, p=(0.3, 0.6, 0.9))], {2: 30.0}, t)
+    assert [m["vehicle_id"] for m in out["overlay"]] == [2] and not out["overlay"][0]["held"]
+    moved = (300.0, 120.0, 340.0, 150.0)
+    (held,) = step(pipe, [view(2, y_m=0.3, p=(0.1, 0.1, 0.1))], {2: 27.0}, t + DT, boxes={2: moved})["overlay"]
+    assert held["held"] and held["box"] == list(moved) and held["distance_m"] == 27.0
+
+
 def test_labels_keep_out_of_what_the_screen_draws_over_the_picture():
     """A car close by whose box reaches the top of the picture: its label goes inside the box, below the areas
     the window draws over it (mirror, trial label), not under them; a small box with no room above or inside

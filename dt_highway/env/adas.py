@@ -106,12 +106,13 @@ class AdasPipeline:
         placements = self.fusion.step(image, detections, view, twin_now_s)
         views = {v.vehicle_id: v for v in view}
         items = select_items(placements, views, self.settings, ego_lane, self.road_map)
-        placed = {vid: p.box for vid, p in placements.items() if p.box is not None}
+        placed: dict[int, dict[str, Any]] = {vid: {"box": p.box, "distance_m": p.distance_m, "rule": p.rule}
+                                             for vid, p in placements.items() if p.box is not None}
         marks = bound_marks(self.overlay.update(items, sim_time_s, placed), self.settings.max_marks)
         out: dict[str, Any] = {
             "overlay": marks,
             "fusion_items": items,
-            "placements": {vid: list(box) for vid, box in placed.items()},
+            "placements": {vid: list(car["box"]) for vid, car in placed.items()},
             "n_boxes": len(detections),
             "method": self.fusion.settings.method,
         }

@@ -58,7 +58,7 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     t1, t2, t4 = max(1, round(1.5 * s)), max(1, round(2 * s)), max(1, round(4 * s))
     band_h = hud_band_height((w, h), minimap)
     badge, mirror_at = _badge_rect(hud.label, h), _mirror_rect((w, h), mirror, pad)
-    keep_out = [(0, h - band_h, w, band_h), badge] + ([mirror_at] if mirror_at is not None else [])
+    keep_out = [(0, h - band_h, w, band_h), *(_grown(r) for r in (badge, mirror_at) if r is not None)]
     out = draw_overlay(rgb, marks, keep_out=keep_out) if marks else np.ascontiguousarray(rgb).copy()
     small = None
     if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
@@ -84,6 +84,13 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     if hud.paused:
         dialog(out, PAUSE_LINES)
     return out
+
+
+def _grown(r: Rect) -> Rect:
+    """``r`` one pixel larger on every side (``cv2.rectangle`` draws its end points, and a frame's line
+    reaches one pixel past it)."""
+    x, y, w, h = r
+    return x - 1, y - 1, w + 3, h + 3
 
 
 def _badge_rect(label: str, h: int) -> Rect:
