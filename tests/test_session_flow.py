@@ -243,6 +243,7 @@ def test_an_error_in_a_trial_is_kept_as_an_aborted_attempt_and_raised(tmp_path):
 def test_sigterm_at_a_screen_ends_the_session_and_says_so(tmp_path):
     calls: list[tuple] = []
     base = DriveOptions("P01", "baseline", tmp_path, overrides=list(SETS), duration_s=3.0, size=(320, 180))
+    before = signal.getsignal(signal.SIGTERM)  # another test of the run may have left its own handler
     timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGTERM))
     timer.start()
     try:
@@ -253,7 +254,7 @@ def test_sigterm_at_a_screen_ends_the_session_and_says_so(tmp_path):
     log = [json.loads(x) for x in (tmp_path / "sessions" / "P01.jsonl").read_text().splitlines()]
     assert [(e["event"], e.get("answer")) for e in log[1:]] == [("screen", "closed"), ("end", None)]
     assert log[-1]["stopped"] == "SIGTERM"
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the session's handler is gone
+    assert signal.getsignal(signal.SIGTERM) is before  # the session's handler is gone, the one before is back
 
 
 # ----------------------------------------------------------------------------- a whole session
