@@ -96,21 +96,38 @@ def predicted_box(box: np.ndarray, velocity_px_s: np.ndarray, age_s: float) -> n
 
 
 @dataclass
-class _Mark:
-    item: dict[str, Any]
+class _BoxTrack:
+    """A car's last box in the image and its edges' velocity, to hold a mark on it while the fusion does not
+    place the car (the real overlay's held marks and the placebo's alike).
+
+    :param box: the car's last box ``(x1, y1, x2, y2)`` [px]
+    :param t_s: the time of that box [s]
+    :param velocity_px_s: the velocity of each of its edges, from the box before [px/s]
+    """
+
     box: np.ndarray
+    t_s: float
     velocity_px_s: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    streak: int = 1
-    shown: bool = False
-    last_seen_s: float = 0.0
-    box_t_s: float = 0.0
 
     def follow(self, box: np.ndarray, t_s: float) -> None:
         """The car's box at ``t_s`` [px] (its image velocity from the box before)."""
-        gap = t_s - self.box_t_s
+        gap = t_s - self.t_s
         if gap > 0:
             self.velocity_px_s = (box - self.box) / gap
-        self.box, self.box_t_s = box, t_s
+        self.box, self.t_s = box, t_s
+
+    def predicted(self, t_s: float) -> np.ndarray | None:
+        """The box at ``t_s`` [s]: :func:`predicted_box` (``None`` when no longer trusted)."""
+        return predicted_box(self.box, self.velocity_px_s, t_s - self.t_s)
+
+
+@dataclass
+class _Mark:
+    item: dict[str, Any]
+    track: _BoxTrack
+    streak: int = 1
+    shown: bool = False
+    last_seen_s: float = 0.0
 
 
 class OverlayStabilizer:
@@ -157,12 +174,12 @@ class OverlayStabilizer:
             box = np.asarray(it["box"], dtype=float)
             mark = self._marks.get(vid)
             if mark is None:
-                self._marks[vid] = _Mark(dict(it), box, last_seen_s=t_s, box_t_s=t_s)
+                self._marks[vid] = _Mark(dict(it), _BoxTrack(box, t_s), last_seen_s=t_s)
                 continue
             gap = t_s - mark.last_seen_s
             fresh = gap > 0 and gap <= dt + 1e-9  # placed in the previous frame too
             mark.streak = mark.streak + 1 if fresh else 1
-            mark.follow(box, t_s)
+            mark.track.follow(box, t_s)
             mark.item, mark.last_seen_s = dict(it), t_s
         out = []
         for vid in list(self._marks):
@@ -176,9 +193,9 @@ class OverlayStabilizer:
             if mark.shown and t_s - mark.last_seen_s <= self.hold_s:
                 car = placed.get(vid)
                 if car is not None:
-                    mark.follow(np.asarray(car["box"], dtype=float), t_s)
+                    mark.track.follow(np.asarray(car["box"], dtype=float), t_s)
                     mark.item.update({k: car[k] for k in ("distance_m", "rule") if k in car})
-                held = predicted_box(mark.box, mark.velocity_px_s, t_s - mark.box_t_s)
+                held = mark.track.predicted(t_s)
             if held is None:
                 del self._marks[vid]
                 continue
@@ -282,12 +299,12 @@ def bound_marks(marks: Sequence[dict[str, Any]], max_marks: int) -> list[dict[st
 @dataclass
 class _Slot:
     car: int
-    box: np.ndarray
-    velocity_px_s: np.ndarray
-    last_seen_s: float
+    track: _BoxTrack
     distance_m: float
     rule: str
     side: str | None
+    box_now: np.ndarray
+    """The box shown this frame: the car's, or (held) its trusted prediction [px]"""
 
 
 class ShamOverlay:
@@ -338,19 +355,20 @@ class ShamOverlay:
         return {rid: s.car for rid, s in self._slots.items()}
 
     def _follow(self, cars: Mapping[int, Mapping[str, Any]], t_s: float) -> None:
-        """Move the slots with their cars; drop those whose car has been gone longer than the hold."""
+        """Move the slots with their cars; drop those whose car has been gone longer than the hold, or whose
+        predicted box is no longer trusted."""
         for rid in list(self._slots):
             s = self._slots[rid]
             car = cars.get(s.car)
             if car is None:
-                if t_s - s.last_seen_s > self.hold_s or predicted_box(s.box, s.velocity_px_s, t_s - s.last_seen_s) is None:
+                held = s.track.predicted(t_s) if t_s - s.track.t_s <= self.hold_s else None
+                if held is None:
                     del self._slots[rid]
+                else:
+                    s.box_now = held
                 continue
-            box = np.asarray(car["box"], dtype=float)
-            gap = t_s - s.last_seen_s
-            if gap > 0:
-                s.velocity_px_s = (box - s.box) / gap
-            s.box, s.last_seen_s = box, t_s
+            s.track.follow(np.asarray(car["box"], dtype=float), t_s)
+            s.box_now = s.track.box
             s.distance_m, s.rule, s.side = float(car["distance_m"]), str(car.get("rule", "")), car.get("side")
 
     def update(self, real: Sequence[Mapping[str, Any]], cars: Mapping[int, Mapping[str, Any]],
@@ -379,19 +397,17 @@ class ShamOverlay:
                     continue
                 vid = free[int(self.rng.integers(len(free)))]
                 car = cars[vid]
-                s = self._slots[rid] = _Slot(vid, np.asarray(car["box"], dtype=float), np.zeros(4), t_s,
-                                             float(car["distance_m"]), str(car.get("rule", "")), car.get("side"))
+                box = np.asarray(car["box"], dtype=float)
+                s = self._slots[rid] = _Slot(vid, _BoxTrack(box, t_s), float(car["distance_m"]),
+                                             str(car.get("rule", "")), car.get("side"), box)
                 taken.add(vid)
             out.append(self._item(m, s, t_s))
         return out
 
     @staticmethod
     def _item(real: Mapping[str, Any], s: _Slot, t_s: float) -> dict[str, Any]:
-        age = t_s - s.last_seen_s
-        box = predicted_box(s.box, s.velocity_px_s, age)  # trusted: _follow dropped the slot otherwise
-        box = s.box if box is None else box
-        item = {**real, "vehicle_id": s.car, "box": [float(b) for b in box], "distance_m": s.distance_m,
-                "rule": s.rule, "held": age > 0}
+        item = {**real, "vehicle_id": s.car, "box": [float(b) for b in s.box_now], "distance_m": s.distance_m,
+                "rule": s.rule, "held": t_s > s.track.t_s}
         if real.get("cue") == THREAT_CUE:
             side = s.side if s.side is not None else real.get("side")
             item["side"] = side
