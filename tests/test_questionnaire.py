@@ -347,3 +347,20 @@ def test_no_questionnaire_files_no_section(tmp_path):
     write_report(root)
     assert "questionnaires" not in json.loads((root / "summary.json").read_text())
     assert "Questionnaires" not in (root / "report.html").read_text()
+
+
+def test_the_questionnaire_is_drawn_with_the_screens_unkerned_font(monkeypatch):
+    # pygame.font (SDL_ttf) kerned "Questionn aire", "t rial", "follow ing" apart (seen in a real window)
+    def no_font(*_a, **_k):
+        raise AssertionError("the questionnaire uses TextFont (no kerning), not pygame.font.Font")
+
+    from dt_highway.hmi import questionnaire as q
+
+    pygame.display.init()
+    monkeypatch.setattr(q, "_FONTS", {})
+    monkeypatch.setattr(pygame.font, "Font", no_font)
+    surface = pygame.Surface((960, 540))
+    for name in ("nasa_tlx", "trust_jian2000"):
+        draw_form(surface, Form(load_questionnaire(name)), "Questionnaire 1 of 2")
+        pixels = pygame.surfarray.array3d(surface).reshape(-1, 3)
+        assert len({tuple(p) for p in pixels[::7]}) > 2  # text and scale drawn on the background

@@ -48,6 +48,7 @@ import pygame
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from dt_highway.config import ConfigError, read_user_file
+from dt_highway.hmi.briefing import TextFont
 from dt_highway.jsonio import dump_json
 
 QUESTIONNAIRE_DIR = Path(__file__).with_name("questionnaires")
@@ -479,17 +480,19 @@ class Layout:
     dots: list[pygame.Rect]
 
 
-_FONTS: dict[int, pygame.font.Font] = {}
+_FONTS: dict[int, TextFont] = {}
 
 
-def _font(px: float) -> pygame.font.Font:
+def _font(px: float) -> TextFont:
+    """The font pygame ships (the same on every machine), spaced as the briefing's screens are (no kerning:
+    :class:`~dt_highway.hmi.briefing.TextFont`), at ``px`` [px]."""
     size = max(10, int(px))
     if size not in _FONTS:
-        _FONTS[size] = pygame.font.Font(None, size)  # the font pygame ships: the same on every machine
+        _FONTS[size] = TextFont(size)
     return _FONTS[size]
 
 
-def _fit(text: str, px: float, width: int) -> pygame.font.Font:
+def _fit(text: str, px: float, width: int) -> TextFont:
     """The font of at most ``px`` pixels in which ``text`` is at most ``width`` pixels wide (at least 40 %)."""
     size = px
     while size > 0.4 * px and _font(size).size(text)[0] > width:
@@ -497,7 +500,7 @@ def _fit(text: str, px: float, width: int) -> pygame.font.Font:
     return _font(size)
 
 
-def _wrap(text: str, font: pygame.font.Font, width: int) -> list[str]:
+def _wrap(text: str, font: TextFont, width: int) -> list[str]:
     lines: list[str] = []
     for para in text.split("\n"):
         line = ""
@@ -512,7 +515,7 @@ def _wrap(text: str, font: pygame.font.Font, width: int) -> list[str]:
     return lines
 
 
-def _balanced(text: str, font: pygame.font.Font, width: int) -> list[str]:
+def _balanced(text: str, font: TextFont, width: int) -> list[str]:
     """``text`` wrapped to ``width`` [px] in as few lines as it takes, the lines made about as long as each
     other (no single word left on the last line)."""
     lines = _wrap(text, font, width)
@@ -525,7 +528,7 @@ def _balanced(text: str, font: pygame.font.Font, width: int) -> list[str]:
     return lines
 
 
-def _blit(surface: pygame.Surface, text: str, font: pygame.font.Font, colour: tuple[int, int, int],
+def _blit(surface: pygame.Surface, text: str, font: TextFont, colour: tuple[int, int, int],
           anchor: str, pos: tuple[int, int]) -> pygame.Rect:
     img = font.render(text, True, colour)
     rect = img.get_rect(**{anchor: pos})
@@ -533,7 +536,7 @@ def _blit(surface: pygame.Surface, text: str, font: pygame.font.Font, colour: tu
     return rect
 
 
-def _button(surface: pygame.Surface, rect: pygame.Rect, text: str, font: pygame.font.Font, active: bool) -> None:
+def _button(surface: pygame.Surface, rect: pygame.Rect, text: str, font: TextFont, active: bool) -> None:
     pygame.draw.rect(surface, ACCENT if active else (70, 74, 84), rect, border_radius=max(3, rect.h // 5))
     _blit(surface, text, font, FG if active else DIM, "center", rect.center)
 
