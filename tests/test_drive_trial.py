@@ -126,6 +126,56 @@ def _interactive(tmp_path, plan, *, condition="sham", label="Trial 2", duration_
     return result, shown, lines
 
 
+def test_the_env_is_made_under_preparing_and_keys_pressed_meanwhile_do_not_start_the_trial(tmp_path, monkeypatch):
+    # gym.make takes seconds (the twin's models): the screen before must not stand frozen meanwhile, and an Enter
+    # pressed then (impatient, or meant for the screen before) must not answer the keys screen
+    texts = _spy_text(monkeypatch)
+    real_make = drive.gym.make
+    seen_before_make = []
+
+    def make(*a, **k):
+        seen_before_make.append(list(texts))
+        pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_RETURN))
+        return real_make(*a, **k)
+
+    monkeypatch.setattr(drive.gym, "make", make)
+    shown = []
+
+    def on_frame(img):
+        shown.append(img)
+        if len(shown) == 2:  # the keys screen: Esc, so the trial never starts
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE))
+
+    result = run_drive(_opts(tmp_path), on_frame=on_frame, say=lambda s: None)
+    assert seen_before_make == [["Preparing the trial..."]]
+    assert result["status"] == "not started" and result["end_reason"] == "quit before the start"
+
+
+def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_included(tmp_path):
+    # the question says "any other key: go on"; Enter, a letter and Space are not trial keys, and answered it too
+    down = pygame.KEYDOWN
+    plan = {2: [(down, pygame.K_RETURN)],  # the keys screen
+            20: [(down, pygame.K_ESCAPE)], 21: [(down, pygame.K_RETURN)],  # the question (frame 21), then Enter
+            30: [(down, pygame.K_ESCAPE)], 31: [(down, pygame.K_SPACE)],
+            40: [(down, pygame.K_ESCAPE)], 41: [(down, pygame.K_a)],
+            50: [(down, pygame.K_ESCAPE)], 51: [(down, pygame.K_ESCAPE)]}
+    # a trial stuck at the question would never end: Esc after 15 s quits it (and the test fails, not hangs)
+    stuck = threading.Timer(15.0, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_ESCAPE)))
+    stuck.start()
+    try:
+        result, shown, _ = _interactive(tmp_path, plan)
+    finally:
+        stuck.cancel()
+    assert result["status"] == "aborted" and result["end_reason"] == "quit by the participant"
+    trial = load_trial(result["directory"])
+    starts = [e for e in trial.events if e["kind"] == "pause_start"]
+    ends = [e for e in trial.events if e["kind"] == "pause_end"]  # the last when the trial ended
+    assert len(starts) == len(ends) == 4 and {e["reason"] for e in starts} == {"Esc"}
+    assert len(shown) > 51  # the trial went on after each answer
+    # only the trial's keys are logged as keys
+    assert {k[2] for k in _keys(trial)} == {"ESC"}
+
+
 def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_only_end_screen(tmp_path, monkeypatch):
     down, up = pygame.KEYDOWN, pygame.KEYUP
     texts = _spy_text(monkeypatch)

@@ -268,7 +268,8 @@ class _Trial:
     clock, and hands the window a snapshot after every simulation step.
 
     Every write to the trial log happens on this thread; the window only reads snapshots and
-    posts inputs (``(kind, key, monotonic time)``: ``down``, ``up``, ``closed``, ``signal``).
+    posts inputs (``(kind, key, monotonic time)``: ``down``, ``up``, ``other`` (a key that is not a trial key),
+    ``closed``, ``signal``).
     """
 
     def __init__(self, env: gym.Env, log: TrialWriter, opts: DriveOptions, info: dict[str, Any],
@@ -370,8 +371,7 @@ class _Trial:
                 self.confirm_quit = True
                 self._set_pause(True, "Esc", t_mono, ev.t_s)
         elif self.confirm_quit:  # any other key: go on
-            self.confirm_quit = False
-            self._set_pause(False, "Esc", t_mono)
+            self._go_on(t_mono)
         elif ev.key in ("LEFT", "RIGHT") and not self.opts.steering:
             self.lane_tap = -1 if ev.key == "LEFT" else 1
         elif ev.key == "P":
@@ -379,10 +379,18 @@ class _Trial:
         elif ev.key == "M":
             self.show_map = not self.show_map
 
+    def _go_on(self, t_mono: float | None) -> None:
+        """The quit question answered "go on" (any key but Esc): the trial goes on."""
+        self.confirm_quit = False
+        self._set_pause(False, "Esc", t_mono)
+
     def take_input(self, kind: str, key: str, t_mono: float) -> None:
         """One input from the window thread (module docstring of the class)."""
         if kind in ("down", "up"):
             self.key_event(KeyEvent(self.trial_time(t_mono), kind == "down", key), t_mono)
+        elif kind == "other":  # a key that is not a trial key (Enter, Space...): it answers the quit question only
+            if self.confirm_quit:  # not logged as a key: the logs' keys are the trial's (the pause's end is logged)
+                self._go_on(t_mono)
         elif kind == "closed":
             self.log.event("window_closed", self.trial_time(t_mono), wall_time=wall_time(t_mono))
             self.stop("window closed")
@@ -581,6 +589,8 @@ def _pass_events(win: _Window, trial: _Trial, names: dict[int, str], scripted: b
             trial.inputs.put(("closed", "", now))
         elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
             trial.inputs.put(("down" if ev.type == pygame.KEYDOWN else "up", names[ev.key], now))
+        elif not scripted and ev.type == pygame.KEYDOWN:  # not a trial key: it only answers the quit question
+            trial.inputs.put(("other", pygame.key.name(ev.key), now))
 
 
 def _window_frame(trial: _Trial, snap: _Snapshot) -> np.ndarray:
@@ -727,9 +737,9 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     shots_dir = opts.screenshots or directory / "screenshots"
     scripted = opts.keys_from is not None
     size = (cfg.camera.width_px, cfg.camera.height_px)
-    env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
     meta = _trial_meta(opts, cfg, overrides, f_sim)
     old_switch = sys.getswitchinterval()
+    env: gym.Env | None = None
     with _Signals() as signals:
         try:
             device = open_wheel(opts)
@@ -738,9 +748,11 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             if wheel is not None:
                 meta["wheel"] = {"index": opts.wheel, "device": device.get_name() if device else "",
                                  "calibration_file": str(wheel_calibration_path(opts)), "calibration": wheel[1].model_dump()}
-            # the traffic and the twin's listening time are prepared while the participant reads the keys
+            # the env (a few seconds: the twin's models) and the traffic are prepared with this on screen, not
+            # the screen before it frozen; keys pressed meanwhile do not reach the keys screen
             if not scripted:
                 win.show(card(size, "Preparing the trial...", []))
+            env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
             _, info = env.reset(seed=opts.seed)
             env.render()  # highway-env's viewer (the mini-map) is made here, on the window's thread
             pygame.display.set_caption(WINDOW_TITLE)  # it renames the window
@@ -768,7 +780,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                 _end_screen(win, trial.status, trial.end_reason)
         finally:
             sys.setswitchinterval(old_switch)
-            env.close()
+            if env is not None:
+                env.close()
             pygame.quit()
     return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason,
             "frames": len(frame_ms), "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),

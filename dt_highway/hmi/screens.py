@@ -22,7 +22,7 @@ LEGEND = (
     ("Left / Right", "change lane"),
     ("M", "mini-map on / off"),
     ("P", "pause"),
-    ("Esc", "quit (asks first)"),
+    ("Esc", "stop the trial (asks first)"),
 )
 """The keys, as shown before a trial"""
 
@@ -153,6 +153,7 @@ def _start_screens(win: _Window, label: str) -> list[KeyEvent] | None:
         pressed Esc, closed the window or a signal came instead
     """
     legend = [f"{k}\t{v}" for k, v in LEGEND]
+    pygame.event.clear((pygame.KEYDOWN, pygame.KEYUP))  # pressed while the trial was prepared: not an answer
     key = win.wait_key(card(win.size, f"{label}: the keys", [*legend, "", "Press Enter to start"]), (*_ENTER, pygame.K_ESCAPE))
     if key is None or key == pygame.K_ESCAPE:
         return None
