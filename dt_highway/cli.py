@@ -519,6 +519,9 @@ def cmd_drive(args: argparse.Namespace) -> int:
     """One keyboard trial in the driving window."""
     opts = _drive_options(args, args.condition)
     result = run_drive(opts)
+    if result["status"] == "not started":  # no folder was written
+        print(f"trial not started ({result['end_reason']}): nothing saved")
+        return 1
     print(f"trial {result['directory']}: {result['status']} ({result['end_reason']}), {result['frames']} frames"
           + (f", {result['screenshots']} screenshots" if result["screenshots"] else ""))
     return 0 if result["status"] in ("completed", "ended_by_collision") else 1  # a crash under --on-crash end: saved

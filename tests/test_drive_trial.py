@@ -146,9 +146,12 @@ def test_the_env_is_made_under_preparing_and_keys_pressed_meanwhile_do_not_start
         if len(shown) == 2:  # the keys screen: Esc, so the trial never starts
             pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE))
 
-    result = run_drive(_opts(tmp_path), on_frame=on_frame, say=lambda s: None)
+    lines: list[str] = []
+    result = run_drive(_opts(tmp_path), on_frame=on_frame, say=lines.append)
     assert seen_before_make == [["Preparing the trial..."]]
     assert result["status"] == "not started" and result["end_reason"] == "quit before the start"
+    # the experimenter is not sent to a folder that was never written
+    assert not Path(result["directory"]).exists() and lines[0].endswith("nothing saved") and "->" not in lines[0]
 
 
 def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_included(tmp_path):
@@ -648,3 +651,14 @@ def test_a_key_script_file_may_press_keys_during_the_countdown(tmp_path):
     accel = trial.steps["action_accel_mps2"].to_numpy()
     assert accel[0] == pytest.approx(-0.3 + 2.5 / 15)  # the throttle from the first step (15 Hz)
     assert not (trial.steps["action_lane"] != 0).any()
+
+
+def test_drive_that_did_not_start_prints_that_nothing_was_saved(tmp_path, monkeypatch, capsys):
+    from dt_highway import cli
+
+    not_started = {"directory": str(tmp_path / "s" / "trials" / "P01-adas"), "status": "not started",
+                   "end_reason": "quit before the start", "frames": 0, "screenshots": 0}
+    monkeypatch.setattr(cli, "run_drive", lambda opts: not_started)
+    assert main(["drive", "--participant", "P01", "--condition", "adas", "--out", str(tmp_path / "s")]) == 1
+    out = capsys.readouterr().out
+    assert out.strip() == "trial not started (quit before the start): nothing saved"

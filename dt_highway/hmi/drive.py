@@ -696,10 +696,12 @@ def _collision_meta(trial: _Trial, opts: DriveOptions) -> dict[str, Any]:
 
 def _status_line(opts: DriveOptions, directory: Path, status: str, end_reason: str, t_sim: float,
                  duration: float, crashes: int, pauses: int) -> str:
-    """The experimenter's one line about a trial (terminal only)."""
+    """The experimenter's one line about a trial (terminal only): where it was logged, or that nothing was
+    (a trial that did not start writes no folder)."""
     name = f"{opts.participant} {opts.condition}{' (practice)' if opts.practice else ''}"
+    where = "nothing saved" if status == "not started" else f"-> {directory}"
     return (f"{name}: {status} ({end_reason}), {t_sim:.1f} of {duration:g} s, {crashes} crash"
-            f"{'' if crashes == 1 else 'es'}, {pauses} pause{'' if pauses == 1 else 's'} -> {directory}")
+            f"{'' if crashes == 1 else 'es'}, {pauses} pause{'' if pauses == 1 else 's'} {where}")
 
 
 def _stderr(line: str) -> None:
