@@ -154,6 +154,60 @@ def test_the_env_is_made_under_preparing_and_keys_pressed_meanwhile_do_not_start
     assert not Path(result["directory"]).exists() and lines[0].endswith("nothing saved") and "->" not in lines[0]
 
 
+def test_a_modifier_key_does_not_answer_the_quit_question(tmp_path):
+    # Shift, Ctrl, Alt (sent again when the window gets the focus back with Alt+Tab) leave the question up;
+    # Enter, 1 s later, answers it
+    down = pygame.KEYDOWN
+    go_on = threading.Timer(1.0, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_RETURN)))
+    plan = {2: [pygame.K_RETURN], 20: [pygame.K_ESCAPE],
+            21: [pygame.K_LSHIFT, pygame.K_LCTRL, pygame.K_LALT, pygame.K_CAPSLOCK]}  # 21: the question
+    shown = []
+
+    def on_frame(img):
+        shown.append(img)
+        for key in plan.get(len(shown), ()):
+            pygame.event.post(pygame.event.Event(down, key=key))
+        if len(shown) == 21:
+            go_on.start()
+
+    try:
+        result = run_drive(_opts(tmp_path, condition="sham", duration_s=3.0), on_frame=on_frame, say=lambda s: None)
+    finally:
+        go_on.cancel()
+    trial = load_trial(result["directory"])
+    ends = [e for e in trial.events if e["kind"] == "pause_end"]
+    assert result["status"] == "completed" and len(ends) == 1 and ends[0]["duration_s"] >= 0.9
+
+
+def test_a_signal_while_a_scripted_trial_is_prepared_stops_it_before_the_start(tmp_path, monkeypatch):
+    real_make = drive.gym.make
+
+    def make(*a, **k):
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while the env is made (in the preparing thread)
+        return real_make(*a, **k)
+
+    monkeypatch.setattr(drive.gym, "make", make)
+    lines: list[str] = []
+    result = run_drive(_opts(tmp_path, keys_from=KeyScript([])), say=lines.append)
+    assert result["status"] == "not started" and result["end_reason"] == "SIGINT"
+    assert lines[0].endswith("nothing saved") and not Path(result["directory"]).exists()
+
+
+def test_the_window_reads_its_events_while_the_trial_is_prepared(tmp_path, monkeypatch):
+    # a close during the seconds the env takes is seen (the window answers; it is not frozen)
+    real_make = drive.gym.make
+
+    def make(*a, **k):
+        pygame.event.post(pygame.event.Event(pygame.QUIT))
+        time.sleep(0.3)  # the window's thread reads it meanwhile
+        assert not pygame.event.peek(pygame.QUIT)
+        return real_make(*a, **k)
+
+    monkeypatch.setattr(drive.gym, "make", make)
+    result = run_drive(_opts(tmp_path), say=lambda s: None)
+    assert result["status"] == "not started" and result["end_reason"] == "window closed"
+
+
 def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_included(tmp_path):
     # the question says "any other key: go on"; Enter, a letter and Space are not trial keys, and answered it too
     down = pygame.KEYDOWN

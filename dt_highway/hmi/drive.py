@@ -581,6 +581,13 @@ def _wheel_input(opts: DriveOptions, device: pygame.joystick.JoystickType,
         raise ConfigError(f"--wheel-calibration {path}: {err}") from None
 
 
+MODIFIER_KEYS = frozenset(getattr(pygame, k) for k in (
+    "K_LSHIFT", "K_RSHIFT", "K_LCTRL", "K_RCTRL", "K_LALT", "K_RALT", "K_LGUI", "K_RGUI", "K_MODE", "K_CAPSLOCK",
+    "K_NUMLOCK", "K_SCROLLOCK"))
+"""Keys that never answer the quit question: modifiers and locks (touched by accident, or sent by the system when
+the window gets the focus back with Alt+Tab)"""
+
+
 def _pass_events(win: _Window, trial: _Trial, names: dict[int, str], scripted: bool) -> None:
     """Hand the window's key presses and releases (not when a script drives) and its close to the simulation."""
     for ev in win.events():
@@ -589,8 +596,8 @@ def _pass_events(win: _Window, trial: _Trial, names: dict[int, str], scripted: b
             trial.inputs.put(("closed", "", now))
         elif not scripted and ev.type in (pygame.KEYDOWN, pygame.KEYUP) and ev.key in names:
             trial.inputs.put(("down" if ev.type == pygame.KEYDOWN else "up", names[ev.key], now))
-        elif not scripted and ev.type == pygame.KEYDOWN:  # not a trial key: it only answers the quit question
-            trial.inputs.put(("other", pygame.key.name(ev.key), now))
+        elif not scripted and ev.type == pygame.KEYDOWN and ev.key not in MODIFIER_KEYS:
+            trial.inputs.put(("other", pygame.key.name(ev.key), now))  # not a trial key: it only answers the quit question
 
 
 def _window_frame(trial: _Trial, snap: _Snapshot) -> np.ndarray:
@@ -708,6 +715,47 @@ def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
+def _made_env(config: dict[str, Any], seed: int) -> tuple[gym.Env, dict[str, Any]]:
+    """The trial's env, reset: ``(env, info)``."""
+    env = gym.make("dt-highway-v0", config=config, render_mode="rgb_array")
+    try:
+        _, info = env.reset(seed=seed)
+    except BaseException:
+        env.close()
+        raise
+    return env, info
+
+
+def _prepare(win: _Window, img: np.ndarray | None,
+             make: Callable[[], tuple[gym.Env, dict[str, Any]]]) -> tuple[gym.Env, dict[str, Any]]:
+    """``make()`` in a worker thread while the window shows ``img`` (``None``: nothing new) and keeps reading its
+    events, so that it answers the window manager for the seconds the env takes (a window that does not can be
+    reported "not responding"); keys pressed meanwhile are dropped, a close or a signal is noted
+    (:attr:`_Window.stopped`).
+
+    :return: what ``make`` returned
+    :raises Exception: what ``make`` raised
+    """
+    done: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            done["value"] = make()
+        except BaseException as err:  # noqa: BLE001 (raised again on the window's thread)
+            done["error"] = err
+
+    worker = threading.Thread(target=work, name="dt-highway-prepare", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        win.events()
+        if img is not None:
+            win.show(img)  # drawn again only after a resize or an expose
+        worker.join(timeout=1 / 30)
+    if "error" in done:
+        raise done["error"]
+    return done["value"]
+
+
 def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None = None,
               say: Callable[[str], object] | None = None) -> dict[str, Any]:
     """Run one keyboard trial in a pygame window and log it.
@@ -752,10 +800,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                                  "calibration_file": str(wheel_calibration_path(opts)), "calibration": wheel[1].model_dump()}
             # the env (a few seconds: the twin's models) and the traffic are prepared with this on screen, not
             # the screen before it frozen; keys pressed meanwhile do not reach the keys screen
-            if not scripted:
-                win.show(card(size, "Preparing the trial...", []))
-            env = gym.make("dt-highway-v0", config=cfg.to_dict(), render_mode="rgb_array")
-            _, info = env.reset(seed=opts.seed)
+            prep = None if scripted else card(size, "Preparing the trial...", [])
+            env, info = _prepare(win, prep, lambda: _made_env(cfg.to_dict(), opts.seed))
             env.render()  # highway-env's viewer (the mini-map) is made here, on the window's thread
             pygame.display.set_caption(WINDOW_TITLE)  # it renames the window
             win.screen = pygame.display.get_surface() or win.screen
@@ -763,7 +809,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                 pre_start: list[KeyEvent] | None = None  # the wheel's set-up was cancelled
             elif scripted:
                 assert opts.keys_from is not None
-                pre_start = opts.keys_from.due(-1e-6)  # keys "held through the countdown"
+                # keys "held through the countdown"; a signal while the env was prepared: not started
+                pre_start = None if win.stopped else opts.keys_from.due(-1e-6)
             else:
                 pre_start = _start_screens(win, opts.label)
             if pre_start is None:
