@@ -233,6 +233,29 @@ def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_include
     assert {k[2] for k in _keys(trial)} == {"ESC"}
 
 
+def test_a_practice_trial_ends_on_practice_saved_not_trial_saved(tmp_path, monkeypatch):
+    # the briefing says practices do not count: the screen after one does not call it a trial
+    titles = []
+    orig_card = screens.card
+
+    def card(size, title, lines):
+        titles.append(title)
+        if title.endswith("saved"):
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_RETURN))
+        return orig_card(size, title, lines)
+
+    monkeypatch.setattr(screens, "card", card)
+    shown = []
+
+    def on_frame(img):
+        shown.append(img)
+        if len(shown) == 2:  # the keys screen
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_RETURN))
+
+    result = run_drive(_opts(tmp_path, practice=True, duration_s=1.0), on_frame=on_frame, say=lambda s: None)
+    assert result["status"] == "completed" and titles[-1] == "Practice saved" and "Trial saved" not in titles
+
+
 def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_only_end_screen(tmp_path, monkeypatch):
     down, up = pygame.KEYDOWN, pygame.KEYUP
     texts = _spy_text(monkeypatch)

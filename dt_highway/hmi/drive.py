@@ -826,7 +826,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
             if not scripted:
-                _end_screen(win, trial.status, trial.end_reason)
+                _end_screen(win, trial.status, trial.end_reason, opts.practice)
         finally:
             sys.setswitchinterval(old_switch)
             if env is not None:

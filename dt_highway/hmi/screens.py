@@ -1,6 +1,6 @@
 """The text screens of a keyboard trial: the keys' legend before it, the 3-2-1 countdown, the
 pause and quit question (:func:`dialog`, drawn over the driving picture), the "Trial saved"
-screen after it, and plain screens between trials (:func:`card`, :func:`show_card`). Drawn with
+("Practice saved") screen after it, and plain screens between trials (:func:`card`, :func:`show_card`). Drawn with
 OpenCV's Hershey font (no pygame font needed); never a condition's name or a file path.
 """
 
@@ -160,13 +160,17 @@ def _start_screens(win: _Window, label: str) -> list[KeyEvent] | None:
     return _countdown(win)
 
 
-def _end_screen(win: _Window, status: str, end_reason: str) -> None:
-    """"Trial saved", until Enter (no other key) or :data:`END_SCREEN_S`; not when the window was closed or a signal came.
+def _end_screen(win: _Window, status: str, end_reason: str, practice: bool = False) -> None:
+    """"Trial saved" ("Practice saved" after a practice trial), until Enter (no other key) or :data:`END_SCREEN_S`;
+    not when the window was closed or a signal came.
 
     :param status: the trial's status (``ended_by_collision`` says so on the screen)
     :param end_reason: why the trial ended
+    :param practice: a practice trial (it does not count: the screen does not call it a trial)
     """
     if win.stopped or end_reason == "window closed":
         return
-    early = ["The trial ended early: there was a collision.", ""] if status == "ended_by_collision" else []
-    win.wait_key(card(win.size, "Trial saved", [*early, "Thank you.", "", "Press Enter to go on"]), _ENTER, END_SCREEN_S)
+    what = "practice" if practice else "trial"
+    early = [f"The {what} ended early: there was a collision.", ""] if status == "ended_by_collision" else []
+    win.wait_key(card(win.size, f"{what.capitalize()} saved", [*early, "Thank you.", "", "Press Enter to go on"]), _ENTER,
+                 END_SCREEN_S)
