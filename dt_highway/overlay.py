@@ -545,13 +545,15 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
         r = (bx, by, bw, bh)
         return 0 <= by <= height - bh and not _overlaps(r, placed) and not _overlaps(r, keep_out)
 
+    def past(in_way: Sequence[int]) -> tuple[Rect | None, bool]:
+        """Once up, just above the labels in the way; else dropped."""
+        up = min(placed[j][1] for j in in_way) - bh - pad
+        return ((bx, up, bw, bh), True) if free(up) else (None, False)
+
     above = top - bh - thick
     if 0 <= above and not _overlaps((bx, above, bw, bh), keep_out):
         in_way = _overlaps((bx, above, bw, bh), placed)
-        if not in_way:
-            return (bx, above, bw, bh), False
-        up = min(placed[j][1] for j in in_way) - bh - pad  # once up, above the labels in the way; else dropped
-        return ((bx, up, bw, bh), True) if free(up) else (None, False)
+        return past(in_way) if in_way else ((bx, above, bw, bh), False)
     # no room above the box: inside it, as high as is free (its top, or just below an area or label in the
     # way), when the box is tall enough; else below it
     below_others = [y + h + thick for x, y, w, h in (*keep_out, *placed) if x < bx + bw and bx < x + w]
@@ -561,8 +563,7 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
     if chosen is not None:
         return (bx, chosen, bw, bh), False
     in_way = _overlaps((bx, below, bw, bh), placed)  # below, in the way of labels: once up past them, as above
-    up = min(placed[j][1] for j in in_way) - bh - pad if in_way else -1
-    return ((bx, up, bw, bh), True) if in_way and free(up) else (None, False)
+    return past(in_way) if in_way else (None, False)
 
 
 def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
