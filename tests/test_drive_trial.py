@@ -154,9 +154,10 @@ def test_the_env_is_made_under_preparing_and_keys_pressed_meanwhile_do_not_start
     assert not Path(result["directory"]).exists() and lines[0].endswith("nothing saved") and "->" not in lines[0]
 
 
-def test_a_modifier_key_does_not_answer_the_quit_question(tmp_path):
+def test_a_modifier_key_does_not_answer_the_quit_question(tmp_path, monkeypatch):
     # Shift, Ctrl, Alt (sent again when the window gets the focus back with Alt+Tab) leave the question up;
     # Enter, 1 s later, answers it
+    monkeypatch.setattr(screens, "END_SCREEN_S", 0.2)  # "Trial saved" is not what is tested: not 10 s of it
     down = pygame.KEYDOWN
     go_on = threading.Timer(1.0, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_RETURN)))
     plan = {2: [pygame.K_RETURN], 20: [pygame.K_ESCAPE],
@@ -208,8 +209,9 @@ def test_the_window_reads_its_events_while_the_trial_is_prepared(tmp_path, monke
     assert result["status"] == "not started" and result["end_reason"] == "window closed"
 
 
-def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_included(tmp_path):
+def test_any_key_but_esc_answers_the_quit_question_go_on_enter_and_space_included(tmp_path, monkeypatch):
     # the question says "any other key: go on"; Enter, a letter and Space are not trial keys, and answered it too
+    monkeypatch.setattr(screens, "END_SCREEN_S", 0.2)  # "Trial saved" is not what is tested: not 10 s of it
     down = pygame.KEYDOWN
     plan = {2: [(down, pygame.K_RETURN)],  # the keys screen
             20: [(down, pygame.K_ESCAPE)], 21: [(down, pygame.K_RETURN)],  # the question (frame 21), then Enter
