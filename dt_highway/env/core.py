@@ -136,7 +136,11 @@ class DTHighwayEnv(HighwayEnv):
         self._cut_ins: list[dict[str, Any]] = []
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None (got {render_mode!r})")
-        super().__init__(config, render_mode)
+        self._constructing = True  # highway-env's constructor resets once: that episode is never driven
+        try:
+            super().__init__(config, render_mode)
+        finally:
+            self._constructing = False
 
     # ------------------------------------------------------------------ configuration
     @classmethod
@@ -315,7 +319,10 @@ class DTHighwayEnv(HighwayEnv):
         self.twin_view = None
         self._events = []
         self._aimed_cut_ins = {}
-        preroll_steps = int(round(cfg.twin.preroll_s * cfg.highway.simulation_frequency)) if cfg.traffic.driver_types else 0
+        # no pre-roll for the constructor's episode: gymnasium asks for a reset before the first step, and a seeded
+        # one draws the world again, so that episode is never driven (its pre-roll took ~2 s of every gym.make)
+        run_preroll = cfg.traffic.driver_types and not self._constructing
+        preroll_steps = int(round(cfg.twin.preroll_s * cfg.highway.simulation_frequency)) if run_preroll else 0
         preroll = preroll_steps / cfg.highway.simulation_frequency
         self.sim_time_s = -preroll
         if self.twin is not None:
