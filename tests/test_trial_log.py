@@ -71,6 +71,19 @@ def test_ctrl_c_inside_a_numba_function_closes_the_log_as_interrupted_not_as_an_
         assert (meta["status"], meta["end_reason"]) == ("aborted", reason)
 
 
+def test_ctrl_c_while_the_log_is_opened_does_not_leave_it_running(tmp_path, monkeypatch):
+    # a study's worker that starts its next trial as the Ctrl-C comes: the log was marked "running" first and the
+    # KeyboardInterrupt came before the ``with`` was entered, so nothing closed it (seen in a SIGTERM test)
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("csv.DictWriter.writeheader", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        TrialWriter(tmp_path / "t", {"driver": "x"})
+    meta = load_trial(tmp_path / "t").meta
+    assert (meta["status"], meta["end_reason"], meta["n_steps"]) == ("aborted", "interrupted by the user", 0)
+
+
 @pytest.mark.parametrize("interrupt", [True, False])
 def test_a_trial_interrupted_inside_a_numba_function_raises_ctrl_c_and_a_real_error_fails_it(tmp_path, monkeypatch,
                                                                                              interrupt):

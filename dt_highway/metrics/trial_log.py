@@ -131,15 +131,19 @@ class TrialWriter:
             "host": socket.gethostname(), "start_time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
             "end_time": None, "end_reason": None, "n_steps": 0,
         }
-        _write_json_atomic(self.dir / META, self.meta)
-        self._steps = open(self.dir / STEPS, "w", newline="", encoding="utf-8")
-        self._csv = csv.DictWriter(self._steps, fieldnames=STEP_COLUMNS, extrasaction="ignore")
-        self._csv.writeheader()
-        self._steps.flush()
-        self._events = open(self.dir / EVENTS, "w", encoding="utf-8")
         self.flush_every_s = flush_every_s
         self._last_flush_t: float | None = None
         self.n_steps = 0
+        self._steps = open(self.dir / STEPS, "w", newline="", encoding="utf-8")
+        self._events = open(self.dir / EVENTS, "w", encoding="utf-8")
+        try:
+            self._csv = csv.DictWriter(self._steps, fieldnames=STEP_COLUMNS, extrasaction="ignore")
+            self._csv.writeheader()
+            self._steps.flush()
+            _write_json_atomic(self.dir / META, self.meta)
+        except BaseException as exc:  # a Ctrl-C here, before the ``with`` is entered, must not leave it "running"
+            self.close("aborted", _abort_reason(exc))
+            raise
 
     def step(self, row: dict[str, Any]) -> None:
         """Append one simulation step's row (keys of :data:`STEP_COLUMNS`)."""
@@ -180,12 +184,17 @@ class TrialWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        if exc_type is not None and interrupted_by_user(exc):
-            self.close("aborted", "interrupted by the user")  # Ctrl-C (also inside a numba-compiled function)
-        elif exc_type is not None:
-            self.close("aborted", f"{exc_type.__name__}: {exc}")
+        if exc is not None:
+            self.close("aborted", _abort_reason(exc))
         else:
             self.close("completed", self.meta.get("end_reason") or "")
+
+
+def _abort_reason(exc: BaseException) -> str:
+    """A trial's ``end_reason`` when ``exc`` stopped it."""
+    if interrupted_by_user(exc):  # Ctrl-C (also inside a numba-compiled function)
+        return "interrupted by the user"
+    return f"{type(exc).__name__}: {exc}"
 
 
 def write_parquet(directory: str | Path, trial: Trial | None = None) -> Path:
