@@ -2,11 +2,13 @@
 the length of a real trial (one sample per simulation step, none at reset)."""
 
 import math
+import signal
 
 import pytest
 from conftest import numba_interrupt
 
 from dt_highway.interrupts import interrupted_by_user
+from dt_highway.metrics import trial_log
 from dt_highway.metrics.safety import SafetySample
 from dt_highway.metrics.trial_log import STEP_COLUMNS, TrialRecorder, TrialWriter, load_trial
 from dt_highway.study import TrialSpec, run_trial
@@ -82,6 +84,24 @@ def test_ctrl_c_while_the_log_is_opened_does_not_leave_it_running(tmp_path, monk
         TrialWriter(tmp_path / "t", {"driver": "x"})
     meta = load_trial(tmp_path / "t").meta
     assert (meta["status"], meta["end_reason"], meta["n_steps"]) == ("aborted", "interrupted by the user", 0)
+
+
+def test_a_second_ctrl_c_while_the_log_is_closed_does_not_leave_it_running(tmp_path, monkeypatch):
+    # an impatient user presses Ctrl-C twice (or a study's worker gets the group's SIGINT and the study's too): the
+    # second came as the first one's "aborted" was being written, and the log stayed "running"
+    real = trial_log._write_json_atomic
+
+    def write(path, meta):
+        if meta["status"] != "running":
+            signal.raise_signal(signal.SIGINT)  # the second Ctrl-C, as the log's end is written
+        real(path, meta)
+
+    monkeypatch.setattr(trial_log, "_write_json_atomic", write)
+    with pytest.raises(KeyboardInterrupt), TrialWriter(tmp_path / "t", {"driver": "x"}):
+        raise KeyboardInterrupt  # the first
+    meta = load_trial(tmp_path / "t").meta
+    assert (meta["status"], meta["end_reason"]) == ("aborted", "interrupted by the user")
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
 
 
 @pytest.mark.parametrize("interrupt", [True, False])
