@@ -1,6 +1,8 @@
 """The dt-highway-v0 env: registration, API checks, determinism, ids, info, memory."""
 
 import gc
+import sqlite3
+from contextlib import closing
 
 import gymnasium as gym
 import numpy as np
@@ -225,6 +227,27 @@ def test_a_seeded_episode_with_a_twin_store_is_the_same_on_every_fresh_store(sma
         env.close()
     assert runs[0] == runs[1]
     assert learnt == [0, 0]  # the constructor's episode learnt nothing
+
+
+def test_a_make_and_close_leaves_a_twin_store_as_it_found_it(small_config, tmp_path):
+    # (the study CLI makes and closes an env per condition to check a trained policy: it drove nothing)
+    path = tmp_path / "twin.sqlite"
+    small_config["twin"]["store"] = {"path": str(path)}
+    env = _make(small_config)
+    env.reset(seed=1)
+    for _ in range(5):
+        env.step(1)
+    env.close()
+
+    def content():
+        with closing(sqlite3.connect(path)) as con:
+            tables = [t for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")]
+            return {t: sorted(con.execute(f"SELECT * FROM {t}").fetchall()) for t in tables}
+
+    before = content()
+    assert before["meta"]
+    _make(small_config).close()
+    assert content() == before
 
 
 def test_twin_view_is_measured_not_true(small_config):

@@ -327,8 +327,9 @@ class DTHighwayEnv(HighwayEnv):
         self.sim_time_s = -preroll
         if self.twin is not None:
             self.twin.start_episode()
-            # the twin clock runs on across episodes: this episode starts 1 s after the last
-            self.twin_offset_s = self.twin.now_s + 1.0 + preroll
+            # the twin clock runs on across episodes: this episode starts 1 s after the last (the constructor's
+            # episode, never driven, leaves it where it was: a make and close leaves a twin store as it found it)
+            self.twin_offset_s = self.twin.now_s + (0.0 if self._constructing else 1.0 + preroll)
             self.twin.now_s = self.twin_now_s
         if cfg.traffic.driver_types:
             self._create_typed_vehicles()
