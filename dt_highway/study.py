@@ -44,7 +44,7 @@ from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
-from dt_highway.interrupts import interrupted_by_user
+from dt_highway.interrupts import SignalsSeen, interrupted_by_user, signals_held
 from dt_highway.jsonio import dump_json
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
@@ -436,42 +436,6 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
         raise ConfigError(f"cannot reach Ray at {address}: {err}") from None
 
 
-class _StopRequests:
-    """A signal handler that only counts Ctrl-C (SIGINT) and SIGTERM, and remembers the first.
-
-    It is installed whatever the signals' handlers were: a study started as a background job
-    (``cmd &`` in a script) inherits SIGINT ignored, so that Python never raised
-    :class:`KeyboardInterrupt` and the study ran on; and after ``ray.init`` SIGTERM went to Ray's
-    handlers (the process aborted with a C++ stack dump, its running trial's log left open). It never
-    raises: a :class:`KeyboardInterrupt` inside Ray's client code can leave Ray half-way through a
-    call; the study's own loop reads the count instead.
-    """
-
-    def __init__(self) -> None:
-        self.count = 0
-        self.first: int | None = None
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        self.count += 1
-        self.first = signum if self.first is None else self.first
-
-
-@contextmanager
-def _signals_counted(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[_StopRequests]:
-    """Count the signals ``signums`` instead of acting on them, until the block is left (then the
-    previous handlers are back). Off the main thread, where Python cannot catch signals, nothing is counted."""
-    stop = _StopRequests()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    old = {s: signal.signal(s, stop) for s in signums}
-    try:
-        yield stop
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
-
-
 def _open_log(directory: str | Path) -> tuple[dict[str, Any], int | None] | None:
     """A trial log that says ``running``: its metadata, and its writer's process id when that ran on this host.
 
@@ -553,7 +517,7 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int,
     Ctrl-C or SIGTERM: no queued trial starts, the running ones are cancelled (their logs are
     closed as aborted, "interrupted by the user"), and :class:`KeyboardInterrupt` is raised once
     they have stopped. Ray starts its workers with SIGINT blocked, so a terminal's Ctrl-C reaches
-    only this process: the signal is counted (:class:`_StopRequests`) and acted on here.
+    only this process: the signal is recorded (:func:`~dt_highway.interrupts.signals_held`) and acted on here.
     """
     try:
         import ray  # lazy: optional extra (pip install dt-highway[ray])
@@ -571,7 +535,10 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int,
                     ray.init(address=address, log_to_driver=False)
             except (ConnectionError, RuntimeError, ValueError) as err:
                 raise ConfigError(f"cannot start or reach Ray at {address or 'a local instance'}: {err}") from None
-        with _signals_counted() as stop:  # installed after ray.init, which sets its own SIGTERM handler
+        # recorded, not raised, whatever the handlers were: a study started as a background job (``cmd &`` in a
+        # script) inherits SIGINT ignored and never saw Ctrl-C; after ray.init SIGTERM went to Ray's handler in C (the
+        # process aborted with a C++ stack dump, its running trial's log left open), so this comes after ray.init
+        with signals_held() as stop:
             try:
                 cancelled = _ray_tasks(ray, specs, record, stop)
             finally:
@@ -586,7 +553,7 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int,
         raise KeyboardInterrupt
 
 
-def _ray_tasks(ray: Any, specs: Sequence[TrialSpec], record: Callable[[dict[str, Any]], None], stop: _StopRequests,
+def _ray_tasks(ray: Any, specs: Sequence[TrialSpec], record: Callable[[dict[str, Any]], None], stop: SignalsSeen,
                poll_s: float = 0.2, grace_s: float = 5.0, missed_s: float = 2.0) -> list[str]:
     """Submit the trials to Ray and pass their results to ``record`` until all are done or ``stop`` counts a signal;
     then cancel the rest, give the running ones ``grace_s`` to close their logs, and kill those that missed the cancel.

@@ -17,6 +17,7 @@ import pytest
 from dt_highway import study
 from dt_highway.bench import _children
 from dt_highway.cli import main
+from dt_highway.interrupts import SignalsSeen, signals_held
 from dt_highway.study import is_completed
 
 REPO = Path(__file__).resolve().parents[1]
@@ -184,7 +185,7 @@ def test_signals_are_counted_not_raised_while_ray_runs_and_the_handlers_come_bac
     guard = signal.signal(signal.SIGTERM, lambda signum, frame: outside.append(signum))
     try:
         before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-        with study._signals_counted() as stop:
+        with signals_held() as stop:
             os.kill(os.getpid(), signal.SIGINT)  # no KeyboardInterrupt here
             os.kill(os.getpid(), signal.SIGTERM)
             for _ in range(100):
@@ -222,7 +223,7 @@ class _FakeRay:
 
 
 def test_ray_trials_stop_on_a_signal_and_a_task_that_misses_its_cancel_is_killed(tmp_path):
-    stop = study._StopRequests()
+    stop = SignalsSeen()
     ray = _FakeRay(stop)
     specs = [study.TrialSpec(str(tmp_path / n), "agents/idm.toml", "baseline", i, i) for i, n in enumerate("abc")]
     recorded = []

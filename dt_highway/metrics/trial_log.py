@@ -27,13 +27,10 @@ import csv
 import io
 import json
 import os
-import signal
 import socket
 import subprocess
-import threading
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -44,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway._version import __version__
-from dt_highway.interrupts import interrupted_by_user
+from dt_highway.interrupts import interrupted_by_user, signals_deferred
 from dt_highway.jsonio import json_safe
 from dt_highway.metrics.overlay_metrics import overlay_metrics
 from dt_highway.metrics.safety import trial_metrics
@@ -175,7 +172,7 @@ class TrialWriter:
         """Finish the trial: flush, and mark it ``completed`` or ``aborted``."""
         if self._steps.closed:
             return
-        with _signals_deferred():  # a second Ctrl-C here would leave the log "running"
+        with signals_deferred():  # a second Ctrl-C here would leave the log "running"
             self._steps.close()
             self._events.close()
             self.meta.update(status=status, end_reason=end_reason, end_time=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
@@ -192,30 +189,6 @@ class TrialWriter:
             self.close("aborted", _abort_reason(exc))
         else:
             self.close("completed", self.meta.get("end_reason") or "")
-
-
-@contextmanager
-def _signals_deferred(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
-    """Hold Ctrl-C and SIGTERM while the body runs, then hand each one that came to the handler it was meant for.
-
-    Only in the main thread: Python runs signal handlers there alone, so elsewhere they cannot interrupt the body.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    came: list[int] = []
-    previous = {}
-    for signum in signums:
-        handler = signal.getsignal(signum)
-        if handler is not None:  # None: a handler not set from Python, which could not be put back
-            previous[signum] = signal.signal(signum, lambda n, _frame: came.append(n))
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in came:
-            signal.raise_signal(signum)
 
 
 def _abort_reason(exc: BaseException) -> str:
