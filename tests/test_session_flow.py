@@ -67,7 +67,7 @@ def _no_q(size, names, directory, answers):
 @pytest.mark.parametrize("old, new, message", [
     ('name = "default"', 'name = "default"\ncolour = "red"', "unknown key 'colour' (allowed here: name, practice_duration_s"),
     ('title = "Welcome"', 'title = "Welcome"\nimage = "x.png"',
-     "unknown key 'briefing.0.image' (allowed here: title, text, keys)"),
+     "unknown key 'briefing.0.image' (allowed here: title, text, keys, marks_example)"),
     ('title = "{label}"\ntext = """This trial', 'title = "{condition}"\ntext = """This trial',
      "trial.title: unknown placeholder {condition} (allowed: {label}, {number}, {total}, {duration})"),
     ("The marks are advice only", "The sham marks are advice only",

@@ -35,6 +35,7 @@ import pygame.freetype
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from dt_highway.config import ConfigError, read_toml
+from dt_highway.hmi.marks_example import marks_example
 
 DEFAULT_PROTOCOL = Path(str(resources.files("dt_highway.hmi").joinpath("protocols", "default.toml")))
 """The protocol a session follows unless told otherwise"""
@@ -72,6 +73,8 @@ class Screen(BaseModel):
     :param title: the heading
     :param text: the body (a blank line starts a paragraph; long lines are wrapped)
     :param keys: show the keys legend below the text
+    :param marks_example: show a picture of the warning marks below the text (the ``overlay`` screen:
+        :mod:`~dt_highway.hmi.marks_example`)
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -79,6 +82,7 @@ class Screen(BaseModel):
     title: str = Field(..., min_length=1, max_length=120, description="the heading")
     text: str = Field("", max_length=4000, description="the body; a blank line starts a paragraph")
     keys: bool = Field(False, description="show the keys legend below the text")
+    marks_example: bool = Field(False, description="show a picture of the warning marks below the text")
 
     @field_validator("title", "text")
     @classmethod
@@ -338,7 +342,29 @@ def _layout(size: tuple[int, int], screen: Screen, legend: Sequence[tuple[str, s
     hint_y = h - small.get_linesize() - int(0.04 * h)
     if hint:
         surf.blit(small.render(hint, True, HINT_COLOUR), (margin, hint_y))
+    if screen.marks_example:
+        return surf, _draw_example(surf, (margin, y + line_h // 2), (w - 2 * margin, hint_y - line_h // 2))
     return surf, y <= hint_y - line_h // 2
+
+
+EXAMPLE_MIN_SCALE = 0.6
+"""The example picture of the marks is drawn at least this fraction of its width on the screen [-]
+(else the text is shrunk to make room)"""
+
+
+def _draw_example(surf: pygame.Surface, at: tuple[int, int], limit: tuple[int, int]) -> bool:
+    """Draw the example picture of the marks at ``at`` [px], as wide as the text column ``limit[0]`` and
+    ending above ``limit[1]`` [px]; :return: whether it fits at :data:`EXAMPLE_MIN_SCALE` or more."""
+    band = marks_example(surf.get_size())
+    bh, bw = band.shape[:2]
+    scale = min(limit[0] / bw, (limit[1] - at[1]) / bh, 1.0)
+    if scale <= 0:
+        return False
+    size = (max(int(bw * scale), 1), max(int(bh * scale), 1))
+    pic = cv2.resize(band, size, interpolation=cv2.INTER_AREA) if size != (bw, bh) else band
+    surf.blit(pygame.image.frombuffer(np.ascontiguousarray(pic).tobytes(), size, "RGB"),
+              (at[0] + (limit[0] - size[0]) // 2, at[1]))
+    return scale >= EXAMPLE_MIN_SCALE * min(limit[0] / bw, 1.0)
 
 
 def render_screen(size: tuple[int, int], screen: Screen, legend: Sequence[tuple[str, str]] = (), hint: str = "",
