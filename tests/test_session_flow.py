@@ -392,3 +392,21 @@ def test_the_reports_console_lines_line_up_for_long_condition_names(tmp_path, ca
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 3 and {line.index("n=") for line in lines} == {2 + len("adas-threat") + 1}
     assert lines[0].startswith("  baseline    n=  4")
+
+
+def test_closing_the_window_at_the_end_screen_is_the_sessions_normal_end(tmp_path, monkeypatch):
+    from dt_highway.hmi.briefing import ScreenWindow
+
+    ask = ScreenWindow.ask
+
+    def close_at_the_end(self, name, *a, **k):
+        return "closed" if name == "end" else ask(self, name, *a, **k)
+
+    monkeypatch.setattr(ScreenWindow, "ask", close_at_the_end)
+    calls: list[tuple] = []
+    outcome = run_session(_base(tmp_path), 1.0, say=lambda _: None, conditions=["baseline", "adas"],
+                          drive=_fake_drive(set(), calls), questionnaires=lambda *a: None)
+    assert outcome.complete and outcome.stopped is None and len(calls) == 4
+    log = [json.loads(x) for x in (tmp_path / "sessions" / "P01.jsonl").read_text().splitlines()]
+    assert (log[-2]["event"], log[-2]["screen"], log[-2]["answer"]) == ("screen", "end", "closed")
+    assert log[-1]["event"] == "end" and log[-1]["stopped"] is None

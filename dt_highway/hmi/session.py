@@ -483,6 +483,14 @@ class _Session:
         if not result.get("completed"):
             raise _Stop(self.signals.received or f"questionnaires after {t.name} not finished")
 
+    def end_screen(self) -> None:
+        """The end screen, until Enter; the session is over already, so closing the window (or a
+        SIGTERM) there is its normal end, not a stop."""
+        try:
+            self.screen("end", self.protocol.end.fill(), hint="", confirm=False)
+        except _Stop:
+            pass
+
     def run(self) -> SessionOutcome:
         """The whole session (module docstring)."""
         done = {t.name: completed_attempt(self.out, t.name) for t in self.plan}
@@ -509,7 +517,7 @@ class _Session:
                     self.say(f"{d.name}: already completed, skipped")
                 entry["status"], entry["directory"] = ("completed" if done[t.name] is None else "skipped"), str(d)
                 self.questionnaires(t, d)
-            self.screen("end", self.protocol.end.fill(), hint="", confirm=False)
+            self.end_screen()
         except _Stop as stop:
             self.outcome.stopped = str(stop)
             self.outcome.trials.extend({"trial": t.name, "label": t.label, "condition": t.condition,
