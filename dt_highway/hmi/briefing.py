@@ -354,17 +354,18 @@ EXAMPLE_MIN_SCALE = 0.6
 
 def _draw_example(surf: pygame.Surface, at: tuple[int, int], limit: tuple[int, int]) -> bool:
     """Draw the example picture of the marks at ``at`` [px], as wide as the text column ``limit[0]`` and
-    ending above ``limit[1]`` [px]; :return: whether it fits at :data:`EXAMPLE_MIN_SCALE` or more."""
-    band = marks_example(surf.get_size())
+    ending above ``limit[1]`` [px] (aspect kept); :return: whether it is drawn at least
+    :data:`EXAMPLE_MIN_SCALE` of the column's width."""
+    band = marks_example()
     bh, bw = band.shape[:2]
-    scale = min(limit[0] / bw, (limit[1] - at[1]) / bh, 1.0)
-    if scale <= 0:
+    scale = min(limit[0] / bw, (limit[1] - at[1]) / bh)
+    size = (int(bw * scale), int(bh * scale))
+    if min(size) < 1:
         return False
-    size = (max(int(bw * scale), 1), max(int(bh * scale), 1))
-    pic = cv2.resize(band, size, interpolation=cv2.INTER_AREA) if size != (bw, bh) else band
-    surf.blit(pygame.image.frombuffer(np.ascontiguousarray(pic).tobytes(), size, "RGB"),
-              (at[0] + (limit[0] - size[0]) // 2, at[1]))
-    return scale >= EXAMPLE_MIN_SCALE * min(limit[0] / bw, 1.0)
+    interpolation = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+    pic = np.ascontiguousarray(cv2.resize(band, size, interpolation=interpolation))
+    surf.blit(pygame.image.frombuffer(pic.tobytes(), size, "RGB"), (at[0] + (limit[0] - size[0]) // 2, at[1]))
+    return size[0] >= EXAMPLE_MIN_SCALE * limit[0]
 
 
 def render_screen(size: tuple[int, int], screen: Screen, legend: Sequence[tuple[str, str]] = (), hint: str = "",

@@ -3,10 +3,12 @@ screen, ``marks_example = true``).
 
 A participant is shown the display before driving with it: a human-machine interface is introduced
 with a picture of it, not only in words. The picture is drawn by the trial's own code: the ego
-camera's renderer (:func:`~dt_highway.env.core.make_camera`, the ``camera`` section's defaults at the
-window's size) on a hand-built three-lane scene, and :func:`~dt_highway.overlay.draw_overlay` for the
-marks, so it shows them in the colours, fonts and size the participant will see. No simulation runs
-and no twin or detector is involved: the marks are placed on the cars by projecting their outlines.
+camera's renderer (:func:`~dt_highway.env.core.make_camera`, the ``camera`` section's defaults at
+:data:`REFERENCE_SIZE_PX`) on a hand-built three-lane scene, and :func:`~dt_highway.overlay.draw_overlay`
+for the marks, so it shows them in the colours and fonts of a trial, their size in proportion to the
+picture's as in a 16:9 trial. It is rendered once (about 0.35 s) and scaled to the screen, whatever
+the window's size. No simulation runs and no twin or detector is involved: the marks are placed on the
+cars by projecting their outlines.
 
 The scene: the ego in the middle lane; a car in the left lane 16 m ahead, already angled towards the
 ego's lane, with the cut-in mark ("<< CUTTING IN", amber); a car in the right lane 34 m ahead with the
@@ -27,6 +29,10 @@ from dt_highway.camera.scene import LaneLine, RoadScene, VehicleSet
 from dt_highway.config import CameraConfig
 from dt_highway.env.core import make_camera
 from dt_highway.overlay import THREAT_CUE, TYPE_CUE, TYPE_LABEL, draw_overlay, label_layout, threat_label
+
+REFERENCE_SIZE_PX = (1280, 720)
+"""The camera picture the example is cut from ``(width, height)`` [px] (16:9, as the default camera)"""
+
 
 LANE_WIDTH_M = 4.0
 """The example road's lane width [m] (highway-env's)"""
@@ -62,8 +68,14 @@ def _corners(x_m: float, y_m: float, heading_rad: float, height_m: float) -> np.
                      for dx in (-length / 2, length / 2) for dy in (-width / 2, width / 2) for z in (0.0, height_m)])
 
 
-@functools.lru_cache(maxsize=4)
-def _example(size: tuple[int, int]) -> np.ndarray:
+@functools.lru_cache(maxsize=1)
+def marks_example() -> np.ndarray:
+    """The example picture of the warning marks (module docstring): the band of a
+    :data:`REFERENCE_SIZE_PX` camera picture from just above the marks' labels to just below the cars.
+
+    :return: ``uint8 (h, 1280, 3)`` RGB, read-only (``h`` < 720)
+    """
+    size = REFERENCE_SIZE_PX
     cfg = CameraConfig(width_px=size[0], height_px=size[1])
     renderer = make_camera(cfg, _scene())
     image, _ = renderer.render(EGO, VehicleSet.of([c[:4] for c in CARS], *CAR_SIZE_M))
@@ -91,19 +103,4 @@ def _example(size: tuple[int, int]) -> np.ndarray:
     return band
 
 
-def marks_example(size: tuple[int, int]) -> np.ndarray:
-    """The example picture of the warning marks (module docstring): the band of a camera picture
-    rendered at ``size``, as a trial of that window size shows it, from just above the marks' labels
-    to just below the cars.
-
-    :param size: the window's size ``(width, height)`` [px] (at least 16 x 16)
-    :return: ``uint8 (h, width, 3)`` RGB, read-only (``h`` < ``height``)
-    :raises ValueError: for a size under 16 x 16 px
-    """
-    w, h = int(size[0]), int(size[1])
-    if w < 16 or h < 16:
-        raise ValueError(f"the example picture needs a size of at least 16 x 16 px (got {w} x {h})")
-    return _example((w, h))
-
-
-__all__ = ["marks_example"]
+__all__ = ["REFERENCE_SIZE_PX", "marks_example"]
