@@ -13,6 +13,7 @@ import math
 import re
 import shlex
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -230,6 +231,26 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _weights_out(args: argparse.Namespace, suffix: str) -> Path:
+    """A training command's ``--out``, checked before any episode runs: a ``suffix`` file, not there yet
+    unless ``--force``, in a folder that exists (made) and takes a file.
+
+    :raises ConfigError: one line naming what is wrong
+    :raises OSError: the folder cannot be made or written (``main`` says so in one line)
+    """
+    out = Path(args.out)
+    if not args.out.strip() or out.suffix != suffix:
+        raise ConfigError(f"--out must name a {suffix} file (got {args.out!r})")
+    if out.is_dir():
+        raise ConfigError(f"--out {out} is a folder, not a {suffix} file")
+    if out.exists() and not args.force:
+        raise ConfigError(f"{out} exists: pass --force to replace it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".check"):
+        pass  # the folder takes a file: found now, not after the training
+    return out
+
+
 def _write_result(path: str, result: Any) -> None:
     """Write a command's JSON result to ``path`` (``--out FILE``), creating its folder, and say where."""
     out = Path(path)
@@ -298,9 +319,13 @@ def cmd_train_tagger(args: argparse.Namespace) -> int:
     """Fit the twin's evidence tagger on simulated training seeds (the continuum by default)."""
     args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
+    _weights_out(args, ".json")
     seeds = list(range(args.seed, args.seed + args.seeds))
     with _progress(training_steps(cfg, seeds, args.episodes), "train-tagger", args.quiet) as bar:
-        summary = train_tagger(cfg, seeds, args.episodes, args.out, progress=bar.update)
+        try:
+            summary = train_tagger(cfg, seeds, args.episodes, args.out, progress=bar.update)
+        except ValueError as exc:  # drivers of one class only
+            raise ConfigError(str(exc)) from None
     print(f"{summary['samples']} drivers ({summary['aggressive']} aggressive) from seeds {seeds[0]}-{seeds[-1]}, "
           f"training AUC {summary['train_auc']:.3f}; wrote {args.out}")
     return 0
@@ -318,10 +343,14 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     for text in args.alternate:
         alternate = deep_merge(alternate, parse_override(text))
     merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
+    _weights_out(args, ".npz")
     with record, fitting:
-        summary = train_intention(cfg, args.episodes, args.seed, args.out, args.epochs, alternate or None,
-                                  progress=lambda stage, n: (record if stage == "record" else fitting).update(n),
-                                  driver=driver)
+        try:
+            summary = train_intention(cfg, args.episodes, args.seed, args.out, args.epochs, alternate or None,
+                                      progress=lambda stage, n: (record if stage == "record" else fitting).update(n),
+                                      driver=driver)
+        except ValueError as exc:  # nothing to learn from
+            raise ConfigError(str(exc)) from None
     print(f"trained on {summary['samples']} estimates of seeds {summary['seeds'][0]}-{summary['seeds'][1]}, "
           f"final loss {summary['final_loss']:.4f}")
     print(f"wrote {summary['out']}")
@@ -333,6 +362,7 @@ def cmd_train_chase(args: argparse.Namespace) -> int:
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     cfg = _config(args)
+    _weights_out(args, ".npz")
     record = _progress((args.episodes + args.test_episodes) * episode_steps(cfg), "record", args.quiet)
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     with record, fitting:
@@ -623,19 +653,24 @@ def cmd_camera(args: argparse.Namespace) -> int:
 def cmd_matching(args: argparse.Namespace) -> int:
     """The target-identification benchmark (paper Fig. 6)."""
     cfg = _config(args)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
     bad = [k for k in kinds if k not in ("simulated", "learned")]
-    if bad or not kinds:
-        raise ConfigError(f"--detectors takes simulated and/or learned, comma-separated (got '{args.detectors}')")
+    if bad or not kinds or len(set(kinds)) != len(kinds):
+        raise ConfigError(f"--detectors takes simulated and/or learned, comma-separated, each once (got '{args.detectors}')")
+    if not cfg.twin.enabled:
+        raise ConfigError("the matching benchmark identifies the twin's vehicles: drop --set twin.enabled=false")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     table: dict[str, Any] = {}
     for kind in kinds:
         # one detector: its outputs in --out; several: one subdirectory each (same frames and targets)
         where = out if len(kinds) == 1 else out / kind
         kcfg = merge(cfg, {"detector": {"kind": kind}})
         with _progress(args.frames, f"matching ({kind})", args.quiet) as bar:
-            result = run_matching(kcfg, args.frames, args.seed, progress=bar.update)
+            try:
+                result = run_matching(kcfg, args.frames, args.seed, progress=bar.update)
+            except ValueError as exc:  # too few connected vehicles in view
+                raise ConfigError(str(exc)) from None
         write_outputs(result, where)
         (where / "config.json").write_text(dump_json(kcfg.to_dict()) + "\n")
         summ = result.summary()
@@ -653,7 +688,10 @@ def cmd_matching(args: argparse.Namespace) -> int:
     if args.sweep:
         n_runs = 4 + 4 + 3 + 1
         with _progress(args.frames * n_runs, "sweep", args.quiet) as bar:
-            rows = run_sweep(cfg, args.frames, args.seed, progress=bar.update)
+            try:
+                rows = run_sweep(cfg, args.frames, args.seed, progress=bar.update)
+            except ValueError as exc:  # a sweep setting that shows too few connected vehicles
+                raise ConfigError(str(exc)) from None
         write_sweep(rows, out)
         print(f"wrote sweep.csv, sweep.json, sweep.png ({cfg.detector.kind} detector) to {out}")
     if len(kinds) == 1:
@@ -1085,6 +1123,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--driver", metavar="FILE",
                    help="this driver (e.g. agents/human.toml) drives the ego in the recordings, in the baseline "
                    "condition (default: the autopilot)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_intent)
 
@@ -1100,6 +1139,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--test-episodes", type=_test_episodes, default=10,
                    help="held-out episodes to score the detector on (default 10; 0: none)")
     p.add_argument("--test-seed", type=_seed, default=TEST_SEED, help=f"their first seed (default {TEST_SEED})")
+    p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_chase)
 
@@ -1114,6 +1154,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0,
                    help="first training seed (default 0; the docs' held-out evaluation uses seed 100)")
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=3, help="episodes per seed (default 3)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_tagger)
 
@@ -1360,6 +1401,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error(exc: OSError) -> str:
+    """One line on an output path that cannot be written: which path, and why."""
+    if exc.filename is None:
+        return f"cannot write: {exc.strerror or exc}"
+    path = Path(str(exc.filename))
+    if isinstance(exc, (FileExistsError, NotADirectoryError)):  # a file where a folder is needed
+        blocking = next((p for p in (path, *path.parents) if p.is_file()), None)
+        if blocking == path:
+            return f"'{path}' is a file, not a folder"
+        if blocking is not None:
+            return f"cannot write '{path}': {blocking} is a file, not a folder"
+    return f"cannot write '{path}': {exc.strerror or exc}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``dt-highway`` console script.
 
@@ -1377,8 +1432,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # an output path that cannot be written, a full disk...
-        where = f" '{exc.filename}'" if exc.filename else ""
-        print(f"dt-highway {args.command}: error: cannot write{where}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"dt-highway {args.command}: error: {_os_error(exc)}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as exc:  # SystemError: Ctrl-C inside numba code (dt_highway.interrupts)
         if not interrupted_by_user(exc):

@@ -104,7 +104,10 @@ def test_train_chase_records_fits_and_scores(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "trained on" in text and "held out, seeds 5000-5000:" in text and "near_ego" in text
     assert ChaseDetector.load(out).meta["seeds"] == "1000-1001"
-    assert main(["train-chase", "--episodes", "2", "--seed", "4999", "--out", str(out), *TINY]) == 2
+    before = out.read_bytes()
+    assert main(["train-chase", "--episodes", "1", "--epochs", "1", "--out", str(out), *TINY]) == 2
+    assert f"{out} exists: pass --force to replace it" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["train-chase", "--episodes", "2", "--seed", "4999", "--out", str(out), "--force", *TINY]) == 2
     assert "overlap the training seeds 4999-5000" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["train-chase", "--test-episodes", "-1", "--out", str(out)])

@@ -76,7 +76,10 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("bench", "memory", "--hours", "nan"), "--hours must be a finite number")
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    _one_line_error(_cli("run", "--out", str(blocker / "sub"), "--quiet", *TINY), "cannot write")
+    _one_line_error(_cli("run", "--out", str(blocker / "sub"), "--quiet", *TINY), f"{blocker} is a file, not a folder")
+    _one_line_error(_cli("matching", "--frames", "2", "--set", "twin.enabled=false", "--out", str(tmp_path / "m")),
+                    "drop --set twin.enabled=false")
+    assert not (tmp_path / "m").exists()
     bad = tmp_path / "latin1.toml"
     bad.write_bytes("title = 'caf\xe9'".encode("latin-1"))
     _one_line_error(_cli("twin-eval", "--scenario", str(bad), "--quiet"), "not valid TOML")

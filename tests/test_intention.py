@@ -599,6 +599,21 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
     assert "traffic.nope" in capsys.readouterr().err
 
 
+def test_train_intent_refuses_to_replace_weights_or_learn_from_nothing(tmp_path, capsys):
+    out = tmp_path / "w.npz"
+    out.write_bytes(b"weights")
+    assert main(["train-intent", "--episodes", "1", "--epochs", "1", "--out", str(out), *TINY]) == 2
+    assert f"{out} exists: pass --force to replace it" in capsys.readouterr().err and out.read_bytes() == b"weights"
+    empty = tmp_path / "sub" / "empty.npz"
+    assert main(["train-intent", "--episodes", "1", "--epochs", "1", "--out", str(empty), "--quiet", *TINY,
+                 "--set", "highway.vehicles_count=0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dt-highway train-intent: error: no lane change in 0 estimates") and err.count("\n") == 1
+    assert not empty.exists()
+    assert main(["train-intent", "--out", str(tmp_path), *TINY]) == 2
+    assert "--out must name a .npz file" in capsys.readouterr().err
+
+
 def test_recordings_start_the_ego_in_a_lane_drawn_per_episode():
     """The trial drivers spend more than half their time in the edge lanes; recordings for training and
     evaluation must show the model an ego there too, not only in the scenario's start lane."""

@@ -48,6 +48,20 @@ def test_a_missing_key_script_is_one_line(tmp_path):
         KeyScript.load(tmp_path / "none.txt")
 
 
+@pytest.mark.parametrize("encoding", ["utf-8", "utf-8-sig", "utf-16"])
+def test_a_key_script_saved_by_any_common_editor_is_read(tmp_path, encoding):
+    path = tmp_path / "keys.txt"
+    path.write_text("0.5 down UP\n1.0 up UP\n", encoding=encoding)  # utf-16: with its byte-order mark
+    assert [(e.t_s, e.down, e.key) for e in KeyScript.load(path).events] == [(0.5, True, "UP"), (1.0, False, "UP")]
+
+
+def test_a_key_script_that_is_not_text_is_one_line(tmp_path):
+    path = tmp_path / "keys.bin"
+    path.write_bytes(bytes(range(256)))
+    with pytest.raises(KeyScriptError, match=r"keys.bin is not text \(UTF-8, or UTF-16 with a byte-order mark\)$"):
+        KeyScript.load(path)
+
+
 def test_steering_ramps_self_centres_and_countersteers_quickly():
     from dt_highway.hmi import Steering
 

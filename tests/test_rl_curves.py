@@ -1,6 +1,7 @@
 """A policy's training curve: the CSV rows from stable-baselines3's log and the evaluations, the PNG, errors."""
 
 import json
+import re
 
 import pandas as pd
 import pytest
@@ -8,6 +9,7 @@ import pytest
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
 from dt_highway.rl.curves import curve_paths, training_curve, write_curve
+from dt_highway.rl.files import FORMAT
 
 LOG = """time/total_timesteps,time/time_elapsed,rollout/ep_rew_mean,rollout/ep_len_mean,reward/ttc2d,train/loss
 1024,6,,,-0.04,
@@ -24,7 +26,7 @@ def _policy(tmp_path, evaluations=EVALS, log=LOG):
     work = tmp_path / "p.d"
     work.mkdir()
     (work / "progress.csv").write_text(log)
-    model.with_suffix(".json").write_text(json.dumps({"algorithm": "PPO", "observation": "adas-threat",
+    model.with_suffix(".json").write_text(json.dumps({"format": FORMAT, "algorithm": "PPO", "observation": "adas-threat",
                                                       "action": "assisted-delayed", "checkpoints": str(work),
                                                       "evaluations": evaluations}))
     return model
@@ -62,3 +64,19 @@ def test_missing_files_are_one_line_errors(tmp_path, capsys):
     assert main(["rl-curve", str(tmp_path / "p.toml")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "MODEL must be a policy .zip" in err
+
+
+@pytest.mark.parametrize(("meta", "progress", "message"), [
+    ("{not json", None, "cannot read .*p.json: Expecting property name"),
+    ("[1]", None, "p.json is not the metadata of a dt-highway policy"),
+    (None, bytes(range(256)) * 4, "progress.csv is not a stable-baselines3 training log"),
+])
+def test_damaged_files_are_one_line_errors(tmp_path, capsys, meta, progress, message):
+    model = _policy(tmp_path)
+    if meta is not None:
+        model.with_suffix(".json").write_text(meta)
+    if progress is not None:
+        (tmp_path / "p.d" / "progress.csv").write_bytes(progress)
+    assert main(["rl-curve", str(model)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and re.search(message, err), err

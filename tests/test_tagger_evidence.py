@@ -92,3 +92,18 @@ def test_fit_recovers_the_direction_of_the_evidence():
     assert np.abs(np.delete(model.weights, k)).max() < 0.3
     with pytest.raises(ValueError, match="both classes"):
         fit(x, np.zeros(2000, dtype=bool))
+
+
+def test_train_tagger_mistakes_are_one_line_errors_and_keep_existing_weights(tmp_path, capsys):
+    from dt_highway.cli import main
+
+    tiny = ["--seeds", "1", "--episodes", "1", "--quiet", "--set", "highway.vehicles_count=8", "--set",
+            "highway.duration=5", "--set", "twin.preroll_s=2", "--set", "traffic.population_size=20"]
+    out = tmp_path / "w.json"
+    out.write_text("{}")
+    assert main(["train-tagger", "--out", str(out), *tiny]) == 2
+    assert f"{out} exists: pass --force to replace it" in capsys.readouterr().err and out.read_text() == "{}"
+    assert main(["train-tagger", "--out", str(out), "--force", "--set", "traffic.aggressive_fraction=0", *tiny]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dt-highway train-tagger: error: train-tagger needs drivers of both classes") and \
+        err.count("\n") == 1 and out.read_text() == "{}"

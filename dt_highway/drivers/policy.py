@@ -13,7 +13,6 @@ you trust (the ones shipped under ``agents/`` or trained yourself).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,7 @@ from dt_highway.drivers.base import Driver
 from dt_highway.drivers.menus import DiscreteMenu
 from dt_highway.drivers.perception import ObservationSpec, Perception, SenseRequest
 from dt_highway.rl.config import TrainConfig, parse_train_config
-from dt_highway.rl.files import FORMAT, sha256, sidecar_path
+from dt_highway.rl.files import read_policy_meta, sha256, sidecar_path
 
 TRAINED_SETTINGS = ("lanes_count", "policy_frequency", "simulation_frequency")
 """``highway`` settings a policy must drive with as it was trained with them"""
@@ -153,15 +152,7 @@ def load_policy(path: str | Path) -> PolicyDriver:
     if not p.is_file():
         raise ConfigError(f"policy file not found: {p}")
     side = sidecar_path(p)
-    try:
-        meta = json.loads(side.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no {side.name} beside it (the metadata dt-highway train writes): "
-                          f"not a dt-highway policy") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ConfigError(f"cannot read {side}: {err}") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ConfigError(f"{side} is not the metadata of a dt-highway policy")
+    meta = read_policy_meta(p)
     config = parse_train_config(meta.get("train_config", {}), str(side))
     if meta.get("model_sha256") and meta["model_sha256"] != sha256(p):
         raise ConfigError(f"{side} describes another model file than {p.name} (its SHA-256 differs): "

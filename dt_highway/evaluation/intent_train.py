@@ -208,6 +208,7 @@ def train_intention(
     :param driver: the ego's driver in the recordings (``config`` merged with its condition and overrides);
         ``None``: the autopilot
     :return: a summary (samples, label counts, losses, seeds)
+    :raises ValueError: on ``episodes`` < 1, or when the recordings hold no lane change to learn from
     """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1 (got {episodes})")
@@ -220,6 +221,9 @@ def train_intention(
     else:
         recorded = record_episodes(config, seeds, with_preroll=True, progress=step, driver=driver)
     data = dataset(recorded)
+    if len(data["y"]) == 0 or not ((data["y"] == 1) | (data["y"] == 2)).any():
+        raise ValueError(f"no lane change in {len(data['y'])} estimates of seeds {seeds[0]}-{seeds[-1]}: nothing to "
+                         "learn from (are there connected vehicles: highway.vehicles_count, twin.enabled?)")
     mean, scale, layers, losses = fit(data, epochs=epochs, hidden=HIDDEN,
                                       progress=(lambda n: progress("fit", n)) if progress else None)
     meta = {"seeds": f"{seeds[0]}-{seeds[-1]}", "epochs": str(epochs), "samples": str(len(data["y"])),

@@ -139,7 +139,11 @@ def run_matching(
     :param settings: target choice
     :param progress: called with 1 per evaluation frame
     :return: per-frame outcomes
+    :raises ValueError: one line, when the twin is off (no target to identify) or the scenario shows too few
+        connected vehicles to find ``frames`` targets
     """
+    if not config.twin.enabled:
+        raise ValueError("the matching benchmark identifies the twin's vehicles: it needs twin.enabled = true")
     cfg = merge(config, {"camera": {"enabled": True}, "ego": {"autopilot": True}, "fusion": {"enabled": False}})
     env = DTHighwayEnv(config=cfg.to_dict())
     env.reset(seed=seed)
@@ -153,7 +157,7 @@ def run_matching(
     max_steps = 200 * frames + 1000
     while len(result.rows) < frames:
         if step >= max_steps:
-            raise RuntimeError(f"no targets in {step} steps: the scenario shows too few connected vehicles "
+            raise ValueError(f"no targets in {step} steps: the scenario shows too few connected vehicles "
                                f"({len(result.rows)} frames found, {frames} asked)")
         _, _, terminated, truncated, _ = env.step(0)
         step += 1

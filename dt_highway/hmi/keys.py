@@ -22,6 +22,7 @@ pressed at 0 s, with when they were pressed (:func:`dt_highway.hmi.drive.held_at
 
 from __future__ import annotations
 
+import codecs
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -199,15 +200,21 @@ class KeyScript:
 
     @classmethod
     def load(cls, path: str | Path) -> KeyScript:
-        """Read a key script file.
+        """Read a key script file: UTF-8 text (a byte-order mark is skipped), or UTF-16 with its
+        byte-order mark (as some Windows editors save it).
 
-        :raises KeyScriptError: when it is missing or a line is bad
+        :raises KeyScriptError: when it is missing, not text, or a line is bad
         """
         p = Path(path)
         try:
-            text = p.read_text(encoding="utf-8")
+            data = p.read_bytes()
         except OSError as err:
             raise KeyScriptError(f"cannot read the key script {p}: {err.strerror or err}") from None
+        utf16 = data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
+        try:
+            text = data.decode("utf-16" if utf16 else "utf-8-sig")
+        except UnicodeDecodeError:
+            raise KeyScriptError(f"the key script {p} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
         return cls.parse(text, str(p))
 
     def due(self, t_s: float) -> list[KeyEvent]:

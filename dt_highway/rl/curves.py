@@ -15,7 +15,6 @@ returns (top) and their collision rates (bottom).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway.config import ConfigError
-from dt_highway.rl.files import sidecar_path
+from dt_highway.rl.files import read_policy_meta
 
 COLUMNS = {
     "time/total_timesteps": "timesteps",
@@ -61,6 +60,8 @@ def training_curve(progress_csv: str | Path, evaluations: list[dict[str, Any]] |
         log = pd.read_csv(path)
     except pd.errors.EmptyDataError:  # stopped before the first rollout ended
         log = pd.DataFrame()
+    except (UnicodeDecodeError, pd.errors.ParserError) as err:
+        raise ConfigError(f"{path} is not a stable-baselines3 training log (a CSV file): {type(err).__name__}") from None
     if "time/total_timesteps" not in log.columns or log.empty:
         raise ConfigError(f"{path} is not a stable-baselines3 training log with rollouts (no time/total_timesteps)")
     terms = sorted(c for c in log.columns if c.startswith("reward/"))
@@ -120,10 +121,7 @@ def write_curve(model_path: str | Path, progress_csv: str | Path | None = None) 
     :raises ConfigError: on a missing metadata file or training log
     """
     model_path = Path(model_path)
-    meta_path = sidecar_path(model_path)
-    if not meta_path.is_file():
-        raise ConfigError(f"{meta_path} not found: a policy's metadata (written by dt-highway train) sits beside its .zip")
-    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta = read_policy_meta(model_path)
     if progress_csv is None:
         folders = [Path(meta["checkpoints"])] if meta.get("checkpoints") else []
         folders.append(model_path.with_suffix(".d"))

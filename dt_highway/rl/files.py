@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import hashlib
+import json
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+from typing import Any
+
+from dt_highway.config import ConfigError
 
 FORMAT = "dt-highway policy 1"
 
@@ -12,6 +16,25 @@ FORMAT = "dt-highway policy 1"
 def sidecar_path(model_path: str | Path) -> Path:
     """Where the metadata of a policy lives: ``agents/x.zip`` -> ``agents/x.json``."""
     return Path(model_path).with_suffix(".json")
+
+
+def read_policy_meta(model_path: str | Path) -> dict[str, Any]:
+    """The metadata ``dt-highway train`` wrote beside a policy (:func:`sidecar_path`).
+
+    :raises ConfigError: one line, when it is missing, unreadable or not a dt-highway policy's
+    """
+    p = Path(model_path)
+    side = sidecar_path(p)
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no {side.name} beside it (the metadata dt-highway train writes): "
+                          f"not a dt-highway policy") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ConfigError(f"cannot read {side}: {err}") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ConfigError(f"{side} is not the metadata of a dt-highway policy")
+    return meta
 
 
 def sha256(path: str | Path) -> str:
