@@ -574,7 +574,8 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
         screenshot_every_s=args.screenshot_every, screenshots=Path(args.screenshots) if args.screenshots else None,
         fps=args.fps, minimap=not args.no_minimap, steering=args.steering, size=args.size, fullscreen=args.fullscreen,
         on_crash=args.on_crash, mirrors=args.mirrors, sound=not args.no_sound, wheel=args.wheel,
-        wheel_calibration=Path(args.wheel_calibration) if args.wheel_calibration else None)
+        wheel_calibration=Path(args.wheel_calibration) if args.wheel_calibration else None,
+        force=getattr(args, "force", False))
 
 
 def cmd_session(args: argparse.Namespace) -> int:
@@ -1204,6 +1205,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--condition", required=True, choices=CONDITIONS, help="baseline, adas, sham...")
     p.add_argument("--practice", action="store_true", help="a practice trial (not in the report)")
     p.add_argument("--out", required=True, help="study directory, e.g. runs/<study>")
+    p.add_argument("--force", action="store_true", help="replace the trial already in its folder "
+                   "(<out>/trials/<participant>-<condition>; refused without it)")
     p.set_defaults(func=cmd_drive)
 
     p = sub.add_parser("session", help="a participant's session: practice, the conditions counterbalanced")

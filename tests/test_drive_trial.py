@@ -463,6 +463,25 @@ def test_a_bad_crash_policy_is_one_line(tmp_path, capsys):
     assert "--on-crash" in capsys.readouterr().err
 
 
+def test_a_trial_already_in_its_folder_is_kept_unless_forced(tmp_path, capsys):
+    held = drive.trial_dir(tmp_path / "s", "P01", "adas", False)
+    held.mkdir(parents=True)
+    (held / "meta.json").write_text(json.dumps({"status": "completed"}))
+    (held / "steps.csv").write_text("t_s\n0.0\n")
+    with pytest.raises(ConfigError, match=r"P01-adas holds a trial already \(status completed\): pass --force"):
+        run_drive(_opts(tmp_path, keys_from=KeyScript.parse("")))
+    assert main(["drive", "--participant", "P01", "--condition", "adas", "--out", str(tmp_path / "s"),
+                 "--keys-from", os.devnull]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds a trial already" in err
+    assert (held / "steps.csv").read_text() == "t_s\n0.0\n"  # nothing touched
+    # practice trials of two conditions go to two folders (they shared one)
+    assert drive.trial_dir(tmp_path, "P01", "adas", True) != drive.trial_dir(tmp_path, "P01", "baseline", True)
+    result = run_drive(_opts(tmp_path, keys_from=KeyScript.parse(""), force=True))
+    assert result["status"] == "completed" and load_trial(held).meta["status"] == "completed"
+    assert len(load_trial(held).steps) > 1
+
+
 # ------------------------------------------------------------------------------------ 4. screens
 @pytest.mark.parametrize("size", [(480, 270), (640, 360), (1920, 1080)])
 def test_the_quit_question_and_the_pause_text_do_not_overlap(size):

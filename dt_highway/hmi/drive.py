@@ -35,6 +35,7 @@ Headless: ``SDL_VIDEODRIVER=offscreen``.
 
 from __future__ import annotations
 
+import json
 import math
 import queue
 import re
@@ -88,7 +89,7 @@ __all__ = [  # this module's own, and (re-exported) what the split of this modul
     "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep",
     "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame", "crash_layer", "dialog", "drive_config",
     "held_at_start", "hud_band_height", "open_wheel", "parse_size", "place_ego_after_crash", "run_drive", "show_card",
-    "trial_dir", "wall_time", "wheel_calibration_path", "wheel_text",
+    "check_free", "trial_dir", "trial_name", "wall_time", "wheel_calibration_path", "wheel_text",
 ]
 
 TRIAL_SIMULATION_HZ = 30
@@ -149,7 +150,7 @@ class DriveOptions:
     :param participant: participant id
     :param condition: one of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``, ``sham``...)
     :param out: the study directory (the trial goes to ``<out>/trials/<participant>-<condition>``)
-    :param practice: a practice trial (``<participant>-practice``; left out of the report)
+    :param practice: a practice trial (``<participant>-practice-<condition>``; left out of the report)
     :param scenario: scenario file
     :param overrides: ``--set`` strings (they win over ``simulation_hz`` and ``size``)
     :param duration_s: trial length [s] (``None``: the scenario's)
@@ -175,6 +176,8 @@ class DriveOptions:
         read once per simulation step (:class:`~dt_highway.hmi.joystick.JoystickInput`); P, M and Esc stay on the keyboard
     :param wheel_calibration: the wheel's calibration file (``None``: ``<out>/wheel-calibration.json``); when
         missing, the calibration screen runs first and saves it there
+    :param force: replace a trial already in the trial's folder (else :func:`run_drive` refuses, before the
+        window opens)
     """
 
     participant: str
@@ -200,6 +203,7 @@ class DriveOptions:
     sound: bool = True
     wheel: int | None = None
     wheel_calibration: Path | None = None
+    force: bool = False
 
     @property
     def label(self) -> str:
@@ -207,9 +211,29 @@ class DriveOptions:
         return "Practice" if self.practice and self.display_label == "Trial" else self.display_label
 
 
+def trial_name(participant: str, condition: str, practice: bool) -> str:
+    """The folder name of a trial's first attempt: ``P01-adas``, ``P01-practice-adas``."""
+    return f"{participant}-practice-{condition}" if practice else f"{participant}-{condition}"
+
+
 def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Path:
-    """Where a keyboard trial is logged."""
-    return Path(out) / "trials" / f"{participant}-{'practice' if practice else condition}"
+    """Where a keyboard trial is logged: ``<out>/trials/<trial_name>``."""
+    return Path(out) / "trials" / trial_name(participant, condition, practice)
+
+
+def check_free(directory: Path) -> None:
+    """Refuse a trial folder that holds a trial already (``--force`` replaces it).
+
+    :raises ConfigError: one line naming the folder, what it holds and the ways out
+    """
+    if not directory.is_dir() or not any(directory.iterdir()):
+        return
+    try:
+        status = json.loads((directory / "meta.json").read_text(encoding="utf-8")).get("status", "?")
+    except (OSError, ValueError, AttributeError):
+        status = "unreadable"
+    raise ConfigError(f"{directory} holds a trial already (status {status}): pass --force to replace it, or use "
+                      "another --participant or --out")
 
 
 class _ClockedWriter(TrialWriter):
@@ -784,6 +808,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     say = say or _stderr
     cfg, overrides, f_sim = _trial_config(opts)
     directory = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
+    if not opts.force:
+        check_free(directory)
     shots_dir = opts.screenshots or directory / "screenshots"
     scripted = opts.keys_from is not None
     size = (cfg.camera.width_px, cfg.camera.height_px)

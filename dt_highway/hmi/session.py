@@ -57,7 +57,7 @@ import pygame
 from dt_highway.conditions import check_condition, shows_overlay
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
-from dt_highway.hmi.drive import DriveOptions, SignalScope, drive_config, run_drive, trial_dir
+from dt_highway.hmi.drive import DriveOptions, SignalScope, drive_config, run_drive, trial_dir, trial_name
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.hmi.questionnaire import load_answers, load_questionnaire, read_results, run_questionnaires
 from dt_highway.jsonio import json_safe
@@ -160,11 +160,6 @@ class SessionTrial:
     def condition(self) -> str:
         """Its condition (never shown to the participant)."""
         return self.opts.condition
-
-
-def trial_name(participant: str, condition: str, practice: bool) -> str:
-    """The folder name of a trial's first attempt: ``P01-adas``, ``P01-practice-adas``."""
-    return f"{participant}-practice-{condition}" if practice else f"{participant}-{condition}"
 
 
 def attempt_name(name: str, attempt: int) -> str:
