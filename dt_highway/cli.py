@@ -718,7 +718,13 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
     return 0
 
 
+MAX_BENCH_BOXES = 1000
+"""Most boxes per frame ``bench fusion`` takes (a camera frame holds tens; its cost matrices grow as the square)"""
+
+
 def cmd_bench_fusion(args: argparse.Namespace) -> int:
+    if args.boxes > MAX_BENCH_BOXES:
+        raise ConfigError(f"--boxes must be at most {MAX_BENCH_BOXES} (got {args.boxes})")
     result = bench_fusion(args.frames, args.boxes)
     if args.json:
         print(dump_json(result))
@@ -754,6 +760,9 @@ def find_file_or_default(scenario: str | None) -> str:
 
 
 def cmd_bench_memory(args: argparse.Namespace) -> int:
+    if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
+        raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
+                          f"{args.hours:g}; got {args.every_min:g})")
     cfg = _config(args)
     steps = int(args.hours * 3600 * cfg.highway.policy_frequency)
     with _progress(steps, "bench memory", args.quiet or args.json) as bar:
@@ -783,6 +792,8 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
     from dt_highway.perception.learned.model import Architecture  # lazy: torch (~1.3 s)
     from dt_highway.perception.learned.train import TrainSettings, check_training, train  # lazy: torch
 
+    if not args.out.strip():
+        raise ConfigError("--out must name the weights file to write (got '')")
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
     arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
@@ -866,9 +877,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix != ".zip":
         raise ConfigError(f"--out must name a .zip file, e.g. agents/{Path(args.config).stem}.zip (got {out})")
-    for path in (out, sidecar_path(out)):
+    for path in (out, sidecar_path(out), out.with_suffix(".d")):  # the .d folder: the last run's checkpoints
         if path.exists() and not args.force:
-            raise ConfigError(f"{path} exists: pass --force to replace it (and {out.with_suffix('.d')})")
+            raise ConfigError(f"{path} exists: pass --force to replace it (the policy {out.name}, its metadata "
+                              f"{sidecar_path(out).name} and its checkpoints {out.with_suffix('.d').name}/)")
     meta = train(cfg, out, timesteps=args.timesteps, n_envs=args.n_envs, tensorboard_dir=args.tensorboard,
                  progress=not args.quiet)
     last = meta["evaluations"][-1] if meta["evaluations"] else None
@@ -1359,7 +1371,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = bsub.add_parser("fusion", help="time of one frame's fusion (Alg. 1 + 2 + tracking) per method, one core")
     p.add_argument("--frames", type=_positive(int, "--frames"), default=300, help="frames per method (default 300)")
     p.add_argument("--boxes", type=_positive(int, "--boxes"), default=20,
-                   help="boxes and twin vehicles per frame (default 20)")
+                   help=f"boxes and twin vehicles per frame (default 20, at most {MAX_BENCH_BOXES})")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_fusion)
     p = bsub.add_parser("detector", help="frames/s of the learned detector, batched, and one frame's latency")

@@ -75,8 +75,15 @@ def test_weights_are_checked_when_loaded(tmp_path):
         ChaseDetector.load(other)
     junk = tmp_path / "junk.npz"
     junk.write_text("not weights")
-    with pytest.raises(ValueError, match="cannot read chase weights"):
-        ChaseDetector.load(junk)
+    with pytest.raises(ValueError, match="cannot read chase weights .*junk.npz: not a .npz archive of arrays$"):
+        ChaseDetector.load(junk)  # not numpy's advice to allow pickles
+    for name, content in (("zip.npz", b"PK\x03\x04torn"), ("empty.npz", b"")):
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(ValueError, match="not a .npz archive of arrays$"):
+            ChaseDetector.load(tmp_path / name)
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(ValueError, match="not a .npz archive of arrays$"):
+        ChaseDetector.load(tmp_path / "one.npy")
 
 
 def test_training_is_deterministic_and_learns_the_labels():

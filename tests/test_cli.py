@@ -74,6 +74,10 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")
     _one_line_error(_cli("twin-eval", "--seed", "-1"), "--seed must be >= 0")
     _one_line_error(_cli("bench", "memory", "--hours", "nan"), "--hours must be a finite number")
+    _one_line_error(_cli("bench", "memory", "--hours", "0.01", "--every-min", "100", "--quiet"),
+                    "--every-min must be at most half of --hours in minutes (0.3 for --hours 0.01; got 100)")
+    _one_line_error(_cli("bench", "fusion", "--boxes", "100000"), "--boxes must be at most 1000")
+    _one_line_error(_cli("detector", "train", "--out", ""), "--out must name the weights file")
     blocker = tmp_path / "file"
     blocker.write_text("x")
     _one_line_error(_cli("run", "--out", str(blocker / "sub"), "--quiet", *TINY), f"{blocker} is a file, not a folder")

@@ -139,6 +139,12 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1, err
+    kept = tmp_path / "moved.d" / "notes.txt"  # an earlier run's checkpoints, its policy moved away
+    kept.parent.mkdir()
+    kept.write_text("mine")
+    assert main(["train", "--config", str(cfg), "--out", str(tmp_path / "moved.zip")]) == 2
+    err = capsys.readouterr().err
+    assert "moved.d exists: pass --force" in err and len(err.strip().splitlines()) == 1 and kept.read_text() == "mine"
 
 
 def test_discrete_driver_menu_and_the_overlay_column():

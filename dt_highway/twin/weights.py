@@ -3,6 +3,7 @@ detector both ship and load theirs this way."""
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +32,17 @@ def read_weights(path: Path, what: str) -> tuple[dict[str, np.ndarray], Layers, 
     :raises ValueError: when the file cannot be read as such a file (one line naming it)
     """
     try:
-        with np.load(path, allow_pickle=False) as z:
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):  # a lone .npy array
+            raise ValueError("not a .npz archive of arrays")
+        with z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"cannot read {what} weights {path}: {exc}") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        # numpy says a text or pickle file "contains pickled (object) data" and suggests allow_pickle=True (which
+        # could run code): name what was expected instead
+        foreign = "pickled" in str(exc) or isinstance(exc, (EOFError, zipfile.BadZipFile))
+        why = "not a .npz archive of arrays" if foreign else str(exc)
+        raise ValueError(f"cannot read {what} weights {path}: {why}") from None
     n_layers = sum(1 for k in arrays if k.startswith("W"))
     try:
         layers = tuple((arrays[f"W{i}"], arrays[f"b{i}"]) for i in range(n_layers))

@@ -309,8 +309,9 @@ def _read_checkpoint(path: Path, arch: Architecture) -> _Resume:
         resume = _Resume(int(state["step"]), float(state["elapsed_s"]), int(state["next_seed"]), int(state["rendered"]),
                          state["model"], state["optimizer"], state["generator"])
     except Exception as exc:  # noqa: BLE001 - a torn or foreign checkpoint: say so, do not guess
-        raise ValueError(f"cannot resume from {path}: {type(exc).__name__}: {exc} "
-                         "(delete it or pass --fresh)") from None
+        # torch's own message runs over several lines and suggests weights_only=False (which could run code): not shown
+        raise ValueError(f"cannot resume from {path}: not a checkpoint of this trainer, or cut short "
+                         f"({type(exc).__name__}); delete it or pass --fresh") from None
     if saved != arch:
         raise ValueError(f"{path} holds another network ({_describe(saved)}; asked: {_describe(arch)}): "
                          "give the same options or pass --fresh")
