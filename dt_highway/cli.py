@@ -90,7 +90,7 @@ def _whole(text: str, not_a_number: str, negative: str) -> int:
 
 
 def _seed(text: str) -> int:
-    return _whole(text, "--seed must be a whole number", "--seed must be >= 0")
+    return _whole(text, "a seed must be a whole number", "a seed must be >= 0")  # argparse names the option
 
 
 def _add_drive_args(p: argparse.ArgumentParser) -> None:
@@ -341,7 +341,7 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     alternate: dict[str, Any] = {}
     for text in args.alternate:
-        alternate = deep_merge(alternate, parse_override(text))
+        alternate = deep_merge(alternate, parse_override(text, "--alternate"))
     merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
     _weights_out(args, ".npz")
     with record, fitting:
@@ -1416,6 +1416,39 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+OUT_FOLDERS = ("run", "camera", "matching", "study", "drive", "session", "rl-compare", "calibrate")
+"""Commands whose ``--out`` is a folder (the others' is a file)"""
+
+
+def _check_out(args: argparse.Namespace) -> None:
+    """Before any work: every ``--out`` is not empty, and the folder it writes into takes a file (found
+    now, not after minutes of simulation). Nothing is created: the nearest folder that exists is tried with
+    a temporary file.
+
+    :raises ConfigError: one line naming the option, the path and why
+    """
+    for attr, option in (("out", "--out"), ("out_json", "--out"), ("frames_out", "--frames-out"),
+                         ("screenshots", "--screenshots")):
+        value = getattr(args, attr, None)
+        if not isinstance(value, str):
+            continue
+        names_folder = attr in ("frames_out", "screenshots") or (attr == "out" and args.command in OUT_FOLDERS)
+        if not value.strip():
+            raise ConfigError(f"{option} must name a {'folder' if names_folder else 'file'} (got '')")
+        target = Path(value)
+        folder = target if names_folder else target.parent
+        existing = next(p for p in (folder, *folder.parents) if p.exists() or p == p.parent)
+        if not existing.is_dir():
+            raise ConfigError(f"{option} {value}: {existing} is a file, not a folder")
+        if not names_folder and target.is_dir():
+            raise ConfigError(f"{option} {value} is a folder: name a file")
+        try:
+            with tempfile.TemporaryFile(dir=existing):
+                pass
+        except OSError as exc:
+            raise ConfigError(f"{option} {value}: cannot write in {existing} ({exc.strerror or exc})") from None
+
+
 def _os_error(exc: OSError) -> str:
     """One line on an output path that cannot be written: which path, and why."""
     if exc.filename is None:
@@ -1442,6 +1475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _check_out(args)
         return int(args.func(args) or 0)
     except ConfigError as exc:
         print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)

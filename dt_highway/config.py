@@ -1047,21 +1047,22 @@ def read_user_file(path: str | Path, parse: Callable[[str], Any], parse_errors: 
         raise ConfigError(malformed.format(path=p, err=err)) from None
 
 
-def parse_override(text: str) -> dict[str, Any]:
+def parse_override(text: str, option: str = "--set") -> dict[str, Any]:
     """Turn ``"a.b.c=value"`` into ``{"a": {"b": {"c": value}}}``.
 
     The value is read as a TOML value (``5``, ``0.5``, ``true``, ``[1, 2]``, ``"text"``);
     anything that is not valid TOML is taken as a plain string.
 
+    :param option: the command-line option the text came from (named in the error)
     :raises ConfigError: when there is no ``=`` or the key is empty
     """
     if "=" not in text:
-        raise ConfigError(f"--set expects dotted.key=value (got '{text}')")
+        raise ConfigError(f"{option} expects dotted.key=value (got '{text}')")
     key, raw = text.split("=", 1)
     key = key.strip()
     parts = key.split(".")
     if not key or any(not p for p in parts):
-        raise ConfigError(f"--set has an empty key part in '{text}'")
+        raise ConfigError(f"{option} has an empty key part in '{text}'")
     raw = raw.strip()
     try:
         value: Any = tomllib.loads(f"v = {raw}")["v"]

@@ -72,15 +72,22 @@ def _one_line_error(proc, must_contain):
 def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--set", "twin.enabled=false", "--quiet"), "twin.enabled")
     _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")
-    _one_line_error(_cli("twin-eval", "--seed", "-1"), "--seed must be >= 0")
+    _one_line_error(_cli("twin-eval", "--seed", "-1"), "argument --seed: a seed must be >= 0 (got -1)")
+    _one_line_error(_cli("train-chase", "--test-seed", "-1", "--out", "x.npz"), "argument --test-seed: a seed must be >= 0")
+    _one_line_error(_cli("train-intent", "--alternate", "foo", "--out", str(tmp_path / "a.npz"), "--quiet"),
+                    "--alternate expects dotted.key=value")
     _one_line_error(_cli("bench", "memory", "--hours", "nan"), "--hours must be a finite number")
     _one_line_error(_cli("bench", "memory", "--hours", "0.01", "--every-min", "100", "--quiet"),
                     "--every-min must be at most half of --hours in minutes (0.3 for --hours 0.01; got 100)")
     _one_line_error(_cli("bench", "fusion", "--boxes", "100000"), "--boxes must be at most 1000")
-    _one_line_error(_cli("detector", "train", "--out", ""), "--out must name the weights file")
+    _one_line_error(_cli("detector", "train", "--out", ""), "--out must name a file (got '')")
+    _one_line_error(_cli("run", "--out", "", "--quiet"), "--out must name a folder (got '')")
+    _one_line_error(_cli("twin-eval", "--out", str(tmp_path), "--quiet"), f"--out {tmp_path} is a folder: name a file")
     blocker = tmp_path / "file"
     blocker.write_text("x")
     _one_line_error(_cli("run", "--out", str(blocker / "sub"), "--quiet", *TINY), f"{blocker} is a file, not a folder")
+    _one_line_error(_cli("replay", str(tmp_path), "--frames-out", str(blocker / "frames")),
+                    f"{blocker} is a file, not a folder")
     _one_line_error(_cli("matching", "--frames", "2", "--set", "twin.enabled=false", "--out", str(tmp_path / "m")),
                     "drop --set twin.enabled=false")
     assert not (tmp_path / "m").exists()

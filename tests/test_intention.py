@@ -611,7 +611,7 @@ def test_train_intent_refuses_to_replace_weights_or_learn_from_nothing(tmp_path,
     assert err.startswith("dt-highway train-intent: error: no lane change in 0 estimates") and err.count("\n") == 1
     assert not empty.exists()
     assert main(["train-intent", "--out", str(tmp_path), *TINY]) == 2
-    assert "--out must name a .npz file" in capsys.readouterr().err
+    assert f"--out {tmp_path} is a folder: name a file" in capsys.readouterr().err
 
 
 def test_recordings_start_the_ego_in_a_lane_drawn_per_episode():

@@ -107,9 +107,9 @@ def evaluate_twin(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1 (got {episodes})")
     if not config.twin.enabled:
-        raise ConfigError("twin-eval needs twin.enabled = true")
+        raise ConfigError("scoring the twin needs twin.enabled = true")
     if not config.traffic.driver_types:
-        raise ConfigError("twin-eval needs traffic.driver_types = true (stock traffic has no driver types to score)")
+        raise ConfigError("scoring the twin needs traffic.driver_types = true (stock traffic has no driver types to score)")
     cfg = merge(config, {"ego": {"autopilot": True}})
     env = DTHighwayEnv(config=cfg.to_dict())
     score = _Score(min_observed_s)
