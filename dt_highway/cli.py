@@ -239,7 +239,7 @@ def _weights_out(args: argparse.Namespace, suffix: str) -> Path:
     :raises OSError: the folder cannot be made or written (``main`` says so in one line)
     """
     out = Path(args.out)
-    if not args.out.strip() or out.suffix != suffix:
+    if out.suffix != suffix:
         raise ConfigError(f"--out must name a {suffix} file (got {args.out!r})")
     if out.is_dir():
         raise ConfigError(f"--out {out} is a folder, not a {suffix} file")
@@ -792,8 +792,6 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
     from dt_highway.perception.learned.model import Architecture  # lazy: torch (~1.3 s)
     from dt_highway.perception.learned.train import TrainSettings, check_training, train  # lazy: torch
 
-    if not args.out.strip():
-        raise ConfigError("--out must name the weights file to write (got '')")
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
     arch = Architecture(width_px=args.width, height_px=args.height, depth=args.depth)
@@ -1416,13 +1414,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _option_names(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Every option's name on the command line (``--scenario``, ``TRIAL_DIR``) by its ``dest``, subcommands too."""
+    names: dict[str, str] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                names = {**_option_names(sub), **names}
+        elif action.dest not in names:
+            names[action.dest] = action.option_strings[-1] if action.option_strings else str(action.metavar or action.dest)
+    return names
+
+
+def _check_not_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """No option is given as an empty string (an unset shell variable): it would name the current folder.
+
+    :raises ConfigError: one line naming the option
+    """
+    empty = [dest for dest, value in vars(args).items() if isinstance(value, str) and not value.strip()]
+    if empty:
+        name = _option_names(parser).get(empty[0], empty[0])
+        raise ConfigError(f"{name} must not be empty (got '{getattr(args, empty[0])}')")
+
+
 OUT_FOLDERS = ("run", "camera", "matching", "study", "drive", "session", "rl-compare", "calibrate")
 """Commands whose ``--out`` is a folder (the others' is a file)"""
 
 
 def _check_out(args: argparse.Namespace) -> None:
-    """Before any work: every ``--out`` is not empty, and the folder it writes into takes a file (found
-    now, not after minutes of simulation). Nothing is created: the nearest folder that exists is tried with
+    """Before any work: the folder every ``--out`` writes into takes a file (found now, not after minutes
+    of simulation). Nothing is created: the nearest folder that exists is tried with
     a temporary file.
 
     :raises ConfigError: one line naming the option, the path and why
@@ -1433,14 +1454,12 @@ def _check_out(args: argparse.Namespace) -> None:
         if not isinstance(value, str):
             continue
         names_folder = attr in ("frames_out", "screenshots") or (attr == "out" and args.command in OUT_FOLDERS)
-        if not value.strip():
-            raise ConfigError(f"{option} must name a {'folder' if names_folder else 'file'} (got '')")
         target = Path(value)
         folder = target if names_folder else target.parent
         existing = next(p for p in (folder, *folder.parents) if p.exists() or p == p.parent)
         if not existing.is_dir():
             raise ConfigError(f"{option} {value}: {existing} is a file, not a folder")
-        if not names_folder and target.is_dir():
+        if not names_folder and target.is_dir() and args.command != "detector":  # detector train says it better
             raise ConfigError(f"{option} {value} is a folder: name a file")
         try:
             with tempfile.TemporaryFile(dir=existing):
@@ -1475,6 +1494,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _check_not_empty(parser, args)
         _check_out(args)
         return int(args.func(args) or 0)
     except ConfigError as exc:

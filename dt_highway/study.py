@@ -343,11 +343,13 @@ def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
     :return: run_trial's result, or status ``cancelled`` (not started) or ``interrupted``
     """
     global _stopped
-    if _stopped or (_stop_event is not None and _stop_event.is_set()):
-        return {"status": "cancelled", "directory": spec.directory}
-    signal.signal(signal.SIGINT, signal.default_int_handler)
     _idle.clear()
     try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        # asked after the handler is swapped: a Ctrl-C just before the swap went to _sigint_seen (and the trial
+        # would have run to its end), one after it raises
+        if _stopped or (_stop_event is not None and _stop_event.is_set()):
+            return {"status": "cancelled", "directory": spec.directory}
         return run_trial(spec)
     except KeyboardInterrupt:  # its log is closed as aborted, "interrupted by the user"
         _stopped = True

@@ -80,8 +80,9 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("bench", "memory", "--hours", "0.01", "--every-min", "100", "--quiet"),
                     "--every-min must be at most half of --hours in minutes (0.3 for --hours 0.01; got 100)")
     _one_line_error(_cli("bench", "fusion", "--boxes", "100000"), "--boxes must be at most 1000")
-    _one_line_error(_cli("detector", "train", "--out", ""), "--out must name a file (got '')")
-    _one_line_error(_cli("run", "--out", "", "--quiet"), "--out must name a folder (got '')")
+    _one_line_error(_cli("detector", "train", "--out", ""), "--out must not be empty (got '')")
+    _one_line_error(_cli("run", "--out", "", "--quiet"), "--out must not be empty (got '')")
+    _one_line_error(_cli("report", " "), "study must not be empty (got ' ')")
     _one_line_error(_cli("twin-eval", "--out", str(tmp_path), "--quiet"), f"--out {tmp_path} is a folder: name a file")
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+import types
 from contextlib import suppress
 from pathlib import Path
 
@@ -177,7 +178,7 @@ def test_study_refuses_an_out_directory_that_is_not_a_study(tmp_path, capsys):
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]  # nothing written there
     (tmp_path / "file").write_text("x")
     assert main(["study", "--driver", "agents/idm.toml", "--out", str(tmp_path / "file")]) == 2
-    assert "is not a directory" in capsys.readouterr().err
+    assert f"{tmp_path / 'file'} is a file, not a folder" in capsys.readouterr().err
 
 
 def test_signals_are_counted_not_raised_while_ray_runs_and_the_handlers_come_back():
@@ -249,3 +250,28 @@ def test_a_log_left_running_by_a_killed_worker_is_marked_aborted(tmp_path):
     for name, status in (("alive", "running"), ("done", "completed"), ("elsewhere", "running")):  # untouched
         assert not study._mark_abandoned(tmp_path / name, wait_s=0.1)
         assert json.loads((tmp_path / name / "meta.json").read_text())["status"] == status
+
+
+def test_a_ctrl_c_as_a_worker_takes_its_next_trial_cancels_it(monkeypatch):
+    """The flake of test_sigterm_to_a_process_pool_study_stops_it_as_ctrl_c_does: a SIGINT that reached a worker
+    after it asked whether to stop and before it swapped in the handler that interrupts a trial went to the
+    between-trials handler, and the trial then ran to its end."""
+    import dt_highway.study as study
+
+    ran: list[str] = []
+    monkeypatch.setattr(study, "run_trial", lambda spec: ran.append(spec.directory) or {"status": "completed"})
+    monkeypatch.setattr(study, "_stopped", False)
+    real = signal.signal
+
+    def swap(signum, handler):
+        if signum == signal.SIGINT and handler is signal.default_int_handler:
+            study._sigint_seen(signum, None)  # the SIGINT lands just as the handler is swapped in
+        return real(signum, handler)
+
+    monkeypatch.setattr(study.signal, "signal", swap)
+    spec = types.SimpleNamespace(directory="trials/baseline-001")
+    try:
+        assert study._pool_trial(spec) == {"status": "cancelled", "directory": "trials/baseline-001"}
+        assert ran == []
+    finally:
+        real(signal.SIGINT, signal.default_int_handler)
