@@ -32,6 +32,8 @@ def test_key_script_parses_and_replays_in_time_order():
 @pytest.mark.parametrize("text, message", [
     ("0.5 down", "expected 'TIME down|up KEY'"),
     ("soon down UP", "time must be a number"),
+    ("nan down UP", "keys.txt:1: time must be a finite number of seconds (got 'nan')"),
+    ("inf up UP", "time must be a finite number of seconds (got 'inf')"),
     ("-3.5 down UP", "keys.txt:1: time must be >= -3 s (before 0: the countdown) (got -3.5)"),
     ("-1 down P", "only UP, DOWN, LEFT, RIGHT can be pressed before 0 s (the countdown; got P at -1 s)"),
     ("2 down UP\n1 up UP", "keys.txt:2: times must not go back"),

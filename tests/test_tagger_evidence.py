@@ -1,6 +1,7 @@
 """The twin's evidence tagger (twin.tagger.model = "evidence"): features, model, traffic samples, fit."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -107,3 +108,17 @@ def test_train_tagger_mistakes_are_one_line_errors_and_keep_existing_weights(tmp
     err = capsys.readouterr().err
     assert err.startswith("dt-highway train-tagger: error: train-tagger needs drivers of both classes") and \
         err.count("\n") == 1 and out.read_text() == "{}"
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    ("{}", "has no 'features' (a file of dt-highway train-tagger holds features, mean, scale, weights and bias)"),
+    ("[1, 2]", "not an object of features, mean, scale, weights and bias"),
+    ("not json", "cannot read"),
+])
+def test_a_damaged_evidence_weights_file_is_one_line_naming_what_is_missing(tmp_path, content, message):
+    from dt_highway.config import ConfigError
+
+    path = tmp_path / "w.json"
+    path.write_text(content)
+    with pytest.raises(ConfigError, match=r"^twin.tagger.evidence_weights: .*" + re.escape(message)):
+        EvidenceModel.load(path)

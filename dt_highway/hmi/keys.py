@@ -182,7 +182,9 @@ class KeyScript:
                 t = float(t_text)
             except ValueError:
                 raise KeyScriptError(f"{where}: time must be a number of seconds (got {t_text!r})") from None
-            if not math.isfinite(t) or t < -COUNTDOWN_S:
+            if not math.isfinite(t):
+                raise KeyScriptError(f"{where}: time must be a finite number of seconds (got {t_text!r})")
+            if t < -COUNTDOWN_S:
                 raise KeyScriptError(f"{where}: time must be >= {-COUNTDOWN_S:g} s (before 0: the countdown) "
                                      f"(got {t_text})")
             if t < last:

@@ -357,8 +357,12 @@ class EvidenceModel:
             names = tuple(d["features"])
             model = EvidenceModel(np.asarray(d["mean"], float), np.asarray(d["scale"], float),
                                   np.asarray(d["weights"], float), float(d["bias"]))
-        except (OSError, ValueError, KeyError, TypeError) as e:
-            raise ConfigError(f"twin.tagger.evidence_weights: cannot read {file} ({e})") from None
+        except KeyError as e:
+            raise ConfigError(f"twin.tagger.evidence_weights: {file} has no {e} (a file of dt-highway train-tagger "
+                              "holds features, mean, scale, weights and bias)") from None
+        except (OSError, ValueError, TypeError) as e:
+            what = "not an object of features, mean, scale, weights and bias" if isinstance(e, TypeError) else e
+            raise ConfigError(f"twin.tagger.evidence_weights: cannot read {file} ({what})") from None
         if names != EVIDENCE_FEATURES or not (len(model.mean) == len(model.scale) == len(model.weights) == len(names)):
             raise ConfigError(f"twin.tagger.evidence_weights: {file} holds other features than {', '.join(EVIDENCE_FEATURES)}")
         return model
