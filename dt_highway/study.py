@@ -115,15 +115,20 @@ def check_resume(out: str | Path, specs: Sequence[TrialSpec]) -> dict[str, dict[
     except (OSError, ValueError, KeyError, TypeError):
         return {}  # an unreadable record: nothing to compare with
 
-    def key(t: dict[str, Any]) -> tuple[Any, ...]:
+    def key(t: dict[str, Any]) -> dict[str, Any]:
         name = lambda p: Path(p).name if p else None  # noqa: E731
-        return t["seed"], list(t["overrides"]), name(t["driver"]), name(t["scenario"])
+        return {"seed": t["seed"], "--set": list(t["overrides"]), "driver": name(t["driver"]),
+                "scenario": name(t["scenario"])}
 
     for spec in specs:
         old = before.get(spec.directory)
-        if old is not None and key(old) != key(asdict(spec)):
+        if old is None:
+            continue
+        was, now = key(old), key(asdict(spec))
+        differ = [f"{k} {was[k]!r}, now {now[k]!r}" for k in was if was[k] != now[k]]
+        if differ:
             raise ConfigError(f"the study in {out} was started with other settings for {Path(spec.directory).name} "
-                              f"(seed, --set, driver, scenario: {key(old)}): use another --out, or the same settings")
+                              f"({'; '.join(differ)}): use another --out, or the same settings")
     return before
 
 

@@ -42,7 +42,7 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
     again = run_study(specs, out, workers=1)
     assert len(again.skipped) == 2 and not again.completed
     other = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 8, "envs/highway-trial.toml", SHORT)
-    with pytest.raises(ConfigError, match="started with other settings for baseline-000"):
+    with pytest.raises(ConfigError, match=r"started with other settings for baseline-000 \(seed 7, now 8\): use another"):
         run_study(other, out, workers=1)  # another seed into the same trial directories
 
 
