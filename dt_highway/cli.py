@@ -233,22 +233,18 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
 
 def _weights_out(args: argparse.Namespace, suffix: str) -> Path:
     """A training command's ``--out``, checked before any episode runs: a ``suffix`` file, not there yet
-    unless ``--force``, in a folder that exists (made) and takes a file.
+    unless ``--force`` (:func:`_check_out` has checked that its folder takes a file).
 
     :raises ConfigError: one line naming what is wrong
-    :raises OSError: the folder cannot be made or written (``main`` says so in one line)
     """
     out = Path(args.out)
-    if out.suffix != suffix:
+    if out.suffix.lower() != suffix:
         raise ConfigError(f"--out must name a {suffix} file (got {args.out!r})")
     if out.is_dir():
         raise ConfigError(f"--out {out} is a folder, not a {suffix} file")
     if out.exists() and not args.force:
         raise ConfigError(f"{out} exists: pass --force to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", suffix=".check"):
-        pass  # the folder takes a file: found now, not after the training
-    return out
+    return out  # its folder takes a file (_check_out); made when the weights are written
 
 
 def _write_result(path: str, result: Any) -> None:
@@ -563,7 +559,7 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
         script = KeyScript.load(args.keys_from) if args.keys_from else None
     except KeyScriptError as err:
         raise ConfigError(str(err)) from None
-    if args.screenshots and not args.screenshot_every:
+    if args.screenshots and not args.screenshot_every and args.command == "drive":  # a session's: its screens
         raise ConfigError("--screenshots DIR needs --screenshot-every S")
     if args.wheel_calibration and args.wheel is None:
         raise ConfigError("--wheel-calibration FILE needs --wheel")
@@ -761,8 +757,9 @@ def find_file_or_default(scenario: str | None) -> str:
 
 def cmd_bench_memory(args: argparse.Namespace) -> int:
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
+        default = " (the default)" if args.every_min == 10.0 else ""
         raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
-                          f"{args.hours:g}; got {args.every_min:g})")
+                          f"{args.hours:g}; got {args.every_min:g}{default})")
     cfg = _config(args)
     steps = int(args.hours * 3600 * cfg.highway.policy_frequency)
     with _progress(steps, "bench memory", args.quiet or args.json) as bar:
@@ -1216,7 +1213,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--practice", action="store_true", help="a practice trial (not in the report)")
     p.add_argument("--out", required=True, help="study directory, e.g. runs/<study>")
     p.add_argument("--force", action="store_true", help="replace the trial already in its folder "
-                   "(<out>/trials/<participant>-<condition>; refused without it)")
+                   "(<out>/trials/<participant>-<condition>, or <participant>-practice; refused without it)")
     p.set_defaults(func=cmd_drive)
 
     p = sub.add_parser("session", help="a participant's session: practice, the conditions counterbalanced")
@@ -1459,7 +1456,7 @@ def _check_out(args: argparse.Namespace) -> None:
         existing = next(p for p in (folder, *folder.parents) if p.exists() or p == p.parent)
         if not existing.is_dir():
             raise ConfigError(f"{option} {value}: {existing} is a file, not a folder")
-        if not names_folder and target.is_dir() and args.command != "detector":  # detector train says it better
+        if not names_folder and target.is_dir() and getattr(args, "detector", None) != "train":  # it says it better
             raise ConfigError(f"{option} {value} is a folder: name a file")
         try:
             with tempfile.TemporaryFile(dir=existing):

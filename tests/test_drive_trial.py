@@ -35,6 +35,7 @@ from dt_highway.hmi.drive import (
     held_at_start,
     parse_size,
     run_drive,
+    trial_name,
 )
 from dt_highway.hmi.keys import KeyEvent, KeyScript
 from dt_highway.metrics.trial_log import check_trial, load_trial
@@ -475,11 +476,12 @@ def test_a_trial_already_in_its_folder_is_kept_unless_forced(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "holds a trial already" in err
     assert (held / "steps.csv").read_text() == "t_s\n0.0\n"  # nothing touched
-    # practice trials of two conditions go to two folders (they shared one)
-    assert drive.trial_dir(tmp_path, "P01", "adas", True) != drive.trial_dir(tmp_path, "P01", "baseline", True)
+    # a set-up practice trial is not in a folder a session would take for its own practice trial
+    assert drive.trial_dir(tmp_path, "P01", "adas", True).name == "P01-practice" != trial_name("P01", "adas", True)
+    (held / "questionnaires.json").write_text("{}")  # the old trial's answers: replaced with it
     result = run_drive(_opts(tmp_path, keys_from=KeyScript.parse(""), force=True))
     assert result["status"] == "completed" and load_trial(held).meta["status"] == "completed"
-    assert len(load_trial(held).steps) > 1
+    assert len(load_trial(held).steps) > 1 and not (held / "questionnaires.json").exists()
 
 
 # ------------------------------------------------------------------------------------ 4. screens

@@ -57,9 +57,11 @@ def test_a_key_script_saved_by_any_common_editor_is_read(tmp_path, encoding):
     assert [(e.t_s, e.down, e.key) for e in KeyScript.load(path).events] == [(0.5, True, "UP"), (1.0, False, "UP")]
 
 
-def test_a_key_script_that_is_not_text_is_one_line(tmp_path):
+@pytest.mark.parametrize("content", [bytes(range(256)), "0.5 down UP\n".encode("utf-16-le"),
+                                     "0.5 down UP\n".encode("utf-32")])
+def test_a_key_script_that_is_not_text_is_one_line(tmp_path, content):
     path = tmp_path / "keys.bin"
-    path.write_bytes(bytes(range(256)))
+    path.write_bytes(content)  # binary, UTF-16 without its byte-order mark, UTF-32
     with pytest.raises(KeyScriptError, match=r"keys.bin is not text \(UTF-8, or UTF-16 with a byte-order mark\)$"):
         KeyScript.load(path)
 

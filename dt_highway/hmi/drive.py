@@ -39,6 +39,7 @@ import json
 import math
 import queue
 import re
+import shutil
 import sys
 import threading
 import time
@@ -150,7 +151,7 @@ class DriveOptions:
     :param participant: participant id
     :param condition: one of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``, ``sham``...)
     :param out: the study directory (the trial goes to ``<out>/trials/<participant>-<condition>``)
-    :param practice: a practice trial (``<participant>-practice-<condition>``; left out of the report)
+    :param practice: a practice trial (``<participant>-practice``; left out of the report)
     :param scenario: scenario file
     :param overrides: ``--set`` strings (they win over ``simulation_hz`` and ``size``)
     :param duration_s: trial length [s] (``None``: the scenario's)
@@ -176,8 +177,8 @@ class DriveOptions:
         read once per simulation step (:class:`~dt_highway.hmi.joystick.JoystickInput`); P, M and Esc stay on the keyboard
     :param wheel_calibration: the wheel's calibration file (``None``: ``<out>/wheel-calibration.json``); when
         missing, the calibration screen runs first and saves it there
-    :param force: replace a trial already in the trial's folder (else :func:`run_drive` refuses, before the
-        window opens)
+    :param force: replace a trial already in the trial's folder, the whole folder, once the new trial starts
+        (else :func:`run_drive` refuses, before the window opens)
     """
 
     participant: str
@@ -217,8 +218,10 @@ def trial_name(participant: str, condition: str, practice: bool) -> str:
 
 
 def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Path:
-    """Where a keyboard trial is logged: ``<out>/trials/<trial_name>``."""
-    return Path(out) / "trials" / trial_name(participant, condition, practice)
+    """Where a keyboard trial is logged: ``<out>/trials/<participant>-<condition>``, a practice trial in
+    ``<participant>-practice`` (a name no session gives, so that a set-up practice does not count as a session's
+    practice trial; a session moves each attempt to its own name, :func:`trial_name`)."""
+    return Path(out) / "trials" / (f"{participant}-practice" if practice else trial_name(participant, condition, False))
 
 
 def check_free(directory: Path) -> None:
@@ -846,6 +849,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                 say(_status_line(opts, directory, "not started", reason, 0.0, cfg.highway.duration, 0, 0))
                 return {"directory": str(directory), "status": "not started", "end_reason": reason,
                         "frames": 0, "screenshots": 0, "frame_ms": [], "size_px": list(size)}
+            if opts.force and directory.exists():  # replaced whole (answers, screenshots...), once the trial starts
+                shutil.rmtree(directory)
             with _ClockedWriter(directory, meta) as log:
                 trial, frame_ms, loop_wall_s = _drive(win, env, log, opts, info, shots_dir, pre_start,
                                                       None if wheel is None else wheel[0])

@@ -215,6 +215,8 @@ class KeyScript:
         utf16 = data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE))
         try:
             text = data.decode("utf-16" if utf16 else "utf-8-sig")
+            if "\x00" in text:  # UTF-16 without its byte-order mark, UTF-32: decodes, with NULs between the digits
+                raise UnicodeDecodeError("utf-8", data, 0, 1, "NUL")
         except UnicodeDecodeError:
             raise KeyScriptError(f"the key script {p} is not text (UTF-8, or UTF-16 with a byte-order mark)") from None
         return cls.parse(text, str(p))

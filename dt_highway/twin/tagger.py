@@ -371,6 +371,7 @@ class EvidenceModel:
         """Write the weights (and ``meta``, e.g. the training seeds) as JSON."""
         d = {"features": list(EVIDENCE_FEATURES), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
              "weights": self.weights.tolist(), "bias": self.bias, **meta}
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
         Path(path).write_text(json.dumps(d, indent=1) + "\n")
 
     def probability(self, features: np.ndarray, observed_s: float = math.inf, prior: float = 0.2) -> float:

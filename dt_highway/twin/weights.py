@@ -20,6 +20,7 @@ def write_weights(path: str | Path, arrays: dict[str, np.ndarray], layers: list[
         out[f"W{i}"], out[f"b{i}"] = np.asarray(w, dtype=np.float64), np.asarray(b, dtype=np.float64)
     for k, value in (meta or {}).items():
         out[f"meta_{k}"] = np.asarray(value)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as fh:
         np.savez(fh, **out)  # type: ignore[arg-type]  # numpy's stub types the keyword arrays as allow_pickle
 
