@@ -18,10 +18,10 @@ import numpy as np
 import pygame
 import pytest
 
-from dt_highway.cli import main
+from dt_highway.cli import find_file_or_default, main
 from dt_highway.config import ConfigError
 from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, TextFont, load_protocol, render_screen
-from dt_highway.hmi.drive import DriveOptions, run_drive, trial_dir
+from dt_highway.hmi.drive import DriveOptions, run_drive, trial_dir, trial_settings
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.hmi.session import STAGING, attempt_dirs, run_session, session_plan, status_line
 from dt_highway.metrics.trial_log import TrialWriter, load_trial
@@ -39,8 +39,8 @@ TRUST = (5 * (8 - 2) + 7 * 5) / 12  # 5.4167: distrust items 1-5 reversed (8 - r
 
 
 def _base(out: Path, participant: str = "P01", **kw) -> DriveOptions:
-    return DriveOptions(participant, "baseline", out, overrides=list(SETS), duration_s=3.0, minimap=False,
-                        keys_from=KeyScript.parse(KEYS), **kw)
+    return DriveOptions(participant, "baseline", out, scenario=find_file_or_default(None), overrides=list(SETS),
+                        duration_s=3.0, minimap=False, keys_from=KeyScript.parse(KEYS), **kw)  # the CLI's scenario
 
 
 def _fake_drive(abort: set[str], calls: list[tuple]):
@@ -52,7 +52,8 @@ def _fake_drive(abort: set[str], calls: list[tuple]):
         d = trial_dir(opts.out, opts.participant, opts.condition, opts.practice)
         status, why = ("aborted", "quit by the participant") if attempt in abort else ("completed", "time limit")
         with TrialWriter(d, {"participant": opts.participant, "condition": opts.condition, "practice": opts.practice,
-                             "seed": opts.seed, "display_label": opts.display_label}) as log:
+                             "seed": opts.seed, "display_label": opts.display_label, "scenario": opts.scenario,
+                             "overrides": trial_settings(opts)["--set"]}) as log:
             log.close(status, why)
         return {"directory": str(d), "status": status, "end_reason": why, "trial_sim_s": 1.0, "collisions": 0}
 
@@ -410,3 +411,20 @@ def test_closing_the_window_at_the_end_screen_is_the_sessions_normal_end(tmp_pat
     log = [json.loads(x) for x in (tmp_path / "sessions" / "P01.jsonl").read_text().splitlines()]
     assert (log[-2]["event"], log[-2]["screen"], log[-2]["answer"]) == ("screen", "end", "closed")
     assert log[-1]["event"] == "end" and log[-1]["stopped"] is None
+
+
+def test_a_session_resumed_with_other_trial_settings_is_refused_before_any_window(tmp_path):
+    out = tmp_path / "study"
+    said: list[str] = []
+    first = run_session(_base(out), 2.0, say=said.append, drive=_fake_drive({"P01-adas"}, []), questionnaires=lambda *a: None)
+    assert [t["status"] for t in first.trials] == ["completed", "completed", "completed", "stopped"]
+    shown: list = []
+    with pytest.raises(ConfigError, match=r"^P01-baseline was driven with other settings \(--set .*'highway.duration=3.0'\]"
+                                          r", now .*'highway.duration=5.0'\]\): go on with the settings"):
+        run_session(replace(_base(out), duration_s=5.0), 2.0, say=said.append, drive=_fake_drive(set(), []),
+                    questionnaires=lambda *a: None, on_frame=shown.append)
+    assert shown == []  # refused before the first screen
+    # another practice length and window size are the same trials: it goes on
+    again = run_session(replace(_base(out), size=(320, 180)), 5.0, say=said.append, drive=_fake_drive(set(), []),
+                        questionnaires=lambda *a: None)
+    assert again.complete

@@ -90,7 +90,7 @@ __all__ = [  # this module's own, and (re-exported) what the split of this modul
     "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep",
     "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame", "crash_layer", "dialog", "drive_config",
     "held_at_start", "hud_band_height", "open_wheel", "parse_size", "place_ego_after_crash", "run_drive", "show_card",
-    "check_free", "trial_dir", "trial_name", "wall_time", "wheel_calibration_path", "wheel_text",
+    "check_free", "trial_dir", "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
 ]
 
 TRIAL_SIMULATION_HZ = 30
@@ -537,18 +537,44 @@ class _Trial:
             self.done = True
 
 
-def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
-    """The trial's configuration, with one decision per simulation step.
-
-    :return: the configuration, the ``--set`` strings (the trial's simulation frequency, size and
-        ``--duration`` among them; the caller's win) and the simulation frequency [Hz]
-    """
+def _trial_overrides(opts: DriveOptions) -> list[str]:
+    """The trial's ``--set`` strings: its simulation frequency, window size, the caller's and ``--duration``."""
     overrides = [] if opts.simulation_hz is None else [f"highway.simulation_frequency={opts.simulation_hz}"]
     if opts.size is not None:
         overrides += [f"camera.width_px={opts.size[0]}", f"camera.height_px={opts.size[1]}"]
     overrides += list(opts.overrides)
     if opts.duration_s is not None:
         overrides.append(f"highway.duration={opts.duration_s}")
+    return overrides
+
+
+WINDOW_KEYS = ("camera.width_px=", "camera.height_px=")
+"""``--set`` strings that only size the window: two attempts of a trial may differ in them (another monitor)"""
+
+
+def trial_settings(opts: DriveOptions | None = None, meta: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What makes two attempts the same trial: condition, seed, scenario (file name) and the ``--set`` strings
+    (length and simulation frequency among them; the window's size left out), of a planned trial or of a log's
+    ``meta.json``.
+
+    :param opts: the planned trial's options
+    :param meta: a trial log's metadata (:func:`_trial_meta`), when ``opts`` is ``None``
+    """
+    m: dict[str, Any] = meta or {}
+    if opts is not None:
+        m = {"condition": opts.condition, "seed": opts.seed, "scenario": opts.scenario, "overrides": _trial_overrides(opts)}
+    scenario = m.get("scenario")
+    return {"condition": m.get("condition"), "seed": m.get("seed"), "scenario": Path(scenario).name if scenario else None,
+            "--set": [o for o in m.get("overrides") or [] if not str(o).startswith(WINDOW_KEYS)]}
+
+
+def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
+    """The trial's configuration, with one decision per simulation step.
+
+    :return: the configuration, the ``--set`` strings (the trial's simulation frequency, size and
+        ``--duration`` among them; the caller's win) and the simulation frequency [Hz]
+    """
+    overrides = _trial_overrides(opts)
     # first the simulation frequency alone (decisions at 1 Hz divide any), then decisions at that frequency
     cfg = load_config(opts.scenario, [*overrides, "highway.policy_frequency=1"], drive_config(opts.condition, opts.steering))
     f_sim = cfg.highway.simulation_frequency

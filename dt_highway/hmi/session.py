@@ -45,7 +45,7 @@ import shutil
 import signal
 import time
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import FrameType
@@ -57,7 +57,15 @@ import pygame
 from dt_highway.conditions import check_condition, shows_overlay
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
-from dt_highway.hmi.drive import DriveOptions, SignalScope, drive_config, run_drive, trial_dir, trial_name
+from dt_highway.hmi.drive import (
+    DriveOptions,
+    SignalScope,
+    drive_config,
+    run_drive,
+    trial_dir,
+    trial_name,
+    trial_settings,
+)
 from dt_highway.hmi.keys import KeyScript
 from dt_highway.hmi.questionnaire import load_answers, load_questionnaire, read_results, run_questionnaires
 from dt_highway.jsonio import json_safe
@@ -478,6 +486,27 @@ class _Session:
         if not result.get("completed"):
             raise _Stop(self.signals.received or f"questionnaires after {t.name} not finished")
 
+    def check_same_settings(self, done: Mapping[str, Path | None]) -> None:
+        """Refuse to go on with a session whose completed trials were driven with other settings (another
+        ``--duration``, ``--seed``, ``--scenario`` or ``--set``): its trials would not be alike. Practice
+        trials are not compared (they are not analysed; ``--practice-duration`` may change).
+
+        :raises ConfigError: one line naming the trial and what differs, before any window opens
+        """
+        for t in self.plan:
+            d = done[t.name]
+            if d is None or t.practice:
+                continue
+            try:
+                was = trial_settings(meta=load_trial(d).meta)
+            except (OSError, ValueError):
+                continue  # unreadable: it was not counted as completed either
+            now = trial_settings(t.opts)
+            differ = [f"{k} {was[k]!r}, now {now[k]!r}" for k in was if was[k] != now[k]]
+            if differ:
+                raise ConfigError(f"{d.name} was driven with other settings ({'; '.join(differ)}): go on with the "
+                                  "settings the session started with, or use another --out")
+
     def end_screen(self) -> None:
         """The end screen, until Enter; the session is over already, so closing the window (or a
         SIGTERM) there is its normal end, not a stop."""
@@ -489,6 +518,7 @@ class _Session:
     def run(self) -> SessionOutcome:
         """The whole session (module docstring)."""
         done = {t.name: completed_attempt(self.out, t.name) for t in self.plan}
+        self.check_same_settings(done)
         self.log("start", participant=self.base.participant, protocol=self.protocol.name,
                  plan=[{"trial": t.name, "label": t.label, "condition": t.condition, "practice": t.practice,
                         "seed": t.opts.seed, "duration_s": t.opts.duration_s} for t in self.plan],
