@@ -231,20 +231,18 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def _weights_out(args: argparse.Namespace, suffix: str) -> Path:
+def _weights_out(args: argparse.Namespace, suffix: str) -> None:
     """A training command's ``--out``, checked before any episode runs: a ``suffix`` file, not there yet
-    unless ``--force`` (:func:`_check_out` has checked that its folder takes a file).
+    unless ``--force`` (:func:`_check_out` has checked that it is no folder and that its folder takes a file;
+    that folder is made when the weights are written).
 
     :raises ConfigError: one line naming what is wrong
     """
     out = Path(args.out)
     if out.suffix.lower() != suffix:
         raise ConfigError(f"--out must name a {suffix} file (got {args.out!r})")
-    if out.is_dir():
-        raise ConfigError(f"--out {out} is a folder, not a {suffix} file")
     if out.exists() and not args.force:
         raise ConfigError(f"{out} exists: pass --force to replace it")
-    return out  # its folder takes a file (_check_out); made when the weights are written
 
 
 def _write_result(path: str, result: Any) -> None:
@@ -1438,6 +1436,12 @@ OUT_FOLDERS = ("run", "camera", "matching", "study", "drive", "session", "rl-com
 """Commands whose ``--out`` is a folder (the others' is a file)"""
 
 
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists (the root at worst): a file there means no folder can be
+    made below it."""
+    return next(p for p in (path, *path.parents) if p.exists() or p == p.parent)
+
+
 def _check_out(args: argparse.Namespace) -> None:
     """Before any work: the folder every ``--out`` writes into takes a file (found now, not after minutes
     of simulation). Nothing is created: the nearest folder that exists is tried with
@@ -1453,7 +1457,7 @@ def _check_out(args: argparse.Namespace) -> None:
         names_folder = attr in ("frames_out", "screenshots") or (attr == "out" and args.command in OUT_FOLDERS)
         target = Path(value)
         folder = target if names_folder else target.parent
-        existing = next(p for p in (folder, *folder.parents) if p.exists() or p == p.parent)
+        existing = _nearest_existing(folder)
         if not existing.is_dir():
             raise ConfigError(f"{option} {value}: {existing} is a file, not a folder")
         if not names_folder and target.is_dir() and getattr(args, "detector", None) != "train":  # it says it better
@@ -1471,11 +1475,10 @@ def _os_error(exc: OSError) -> str:
         return f"cannot write: {exc.strerror or exc}"
     path = Path(str(exc.filename))
     if isinstance(exc, (FileExistsError, NotADirectoryError)):  # a file where a folder is needed
-        blocking = next((p for p in (path, *path.parents) if p.is_file()), None)
-        if blocking == path:
-            return f"'{path}' is a file, not a folder"
-        if blocking is not None:
-            return f"cannot write '{path}': {blocking} is a file, not a folder"
+        blocking = _nearest_existing(path)
+        if blocking.is_file():
+            return f"'{path}' is a file, not a folder" if blocking == path else \
+                f"cannot write '{path}': {blocking} is a file, not a folder"
     return f"cannot write '{path}': {exc.strerror or exc}"
 
 
