@@ -424,12 +424,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     key, sep, values = args.knob.partition("=")
     if not sep or not key.strip() or not values.strip():
         raise ConfigError(f"--knob must be KEY=V1,V2,... e.g. traffic.dangerous.brake_mps2=2,3,4 (got {args.knob!r})")
-    drivers = [find_file(d.strip(), "agents") for d in args.drivers.split(",") if d.strip()]
-    if not drivers:
+    typed = [d.strip() for d in args.drivers.split(",") if d.strip()]
+    if not typed:
         raise ConfigError("--drivers needs at least one driver file, e.g. agents/human.toml,agents/idm.toml")
+    drivers = [find_file(d, "agents") for d in typed]
+    found = {d: str(Path(f).resolve()) for d, f in zip(typed, drivers, strict=True)}
+    _check_once(typed, "--drivers", "driver file", key=found.__getitem__)  # idm.toml is agents/idm.toml
     for d in drivers:
         load_driver(d)
     value_list = [v.strip() for v in values.split(",") if v.strip()]
+    _check_once(value_list, "--knob", "value")
     scenario = find_file_or_default(args.scenario)
     total = len(drivers) * len(value_list) * args.trials
     with _progress(total, "calibrate", args.quiet, unit="trial") as bar:
@@ -443,6 +447,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(md_path.read_text(encoding="utf-8"), end="")
     print(f"wrote {csv_path}, {md_path}")
     return 0
+
+
+def _check_once(items: Sequence[str], option: str, what: str, key: Callable[[str], str] = str) -> None:
+    """Refuse a comma-separated list that names the same item twice (it would be run twice).
+
+    :param key: what makes two items the same (default: their text)
+    :raises ConfigError: one line naming the repeated item
+    """
+    seen: set[str] = set()
+    for item in items:
+        if key(item) in seen:
+            raise ConfigError(f"{option} names the {what} {item!r} twice: give each once")
+        seen.add(key(item))
 
 
 def cmd_study(args: argparse.Namespace) -> int:
@@ -460,6 +477,8 @@ def cmd_study(args: argparse.Namespace) -> int:
             raise ConfigError("dt-highway study needs --driver FILE and --out DIR (or --quick)")
         driver, scenario = find_file(args.driver, "agents"), find_file_or_default(args.scenario)
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
+    if args.ray_address and args.backend != "ray":
+        raise ConfigError("--ray-address needs --backend ray (the default process backend runs on this machine)")
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     _check_study_out(out)
     # bad driver files and configurations fail here, once, rather than in every trial
@@ -601,6 +620,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """Play a logged keyboard trial back, in the window or as PNG frames (``--frames-out``)."""
     if args.every_s is not None and not args.frames_out:
         raise ConfigError("--every-s S needs --frames-out DIR")
+    if args.speed != 1.0 and args.frames_out:
+        raise ConfigError("--speed is for the window: --frames-out writes every frame as fast as it can")
     result = replay_trial(args.trial, frames_out=args.frames_out, every_s=args.every_s, window=not args.frames_out,
                           speed=args.speed)
     where = f", {result.frames} frames in {result.frames_dir}" if result.frames_dir is not None else ""
@@ -902,6 +923,8 @@ def cmd_rl_curve(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
+    if args.episodes_json and not args.json:
+        raise ConfigError("--episodes-json needs --json (--out FILE writes every episode's metrics without it)")
     scenario = args.scenario or EVAL_SCENARIO
     driver = load_driver(args.driver)  # mistakes in the driver or the scenario: one line, before the bar
     load_config(scenario, args.overrides)
@@ -1197,7 +1220,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="study directory, e.g. runs/<name> (--quick: runs/quick-study)")
     p.add_argument("--backend", choices=("process", "ray"), default="process",
                    help="process pool (default) or Ray tasks")
-    p.add_argument("--ray-address", help="address of an existing Ray cluster")
+    p.add_argument("--ray-address", help="with --backend ray: address of an existing Ray cluster")
     p.add_argument("--quick", action="store_true", help="a small study with the human-like driver, then its report")
     p.add_argument("--report", action="store_true", help="write the report when the study is done")
     p.add_argument("--parquet", action="store_true",

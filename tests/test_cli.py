@@ -3,6 +3,9 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 from dt_highway.cli import main
 
@@ -95,6 +98,23 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     bad = tmp_path / "latin1.toml"
     bad.write_bytes("title = 'caf\xe9'".encode("latin-1"))
     _one_line_error(_cli("twin-eval", "--scenario", str(bad), "--quiet"), "not valid TOML")
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["evaluate", "--driver", "agents/idm.toml", "--episodes-json"], "--episodes-json needs --json"),
+    (["study", "--quick", "--ray-address", "auto"], "--ray-address needs --backend ray"),
+    (["replay", "runs/none", "--frames-out", "f", "--speed", "2"], "--speed is for the window"),
+    (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2,3,2"], "--knob names the value '2' twice"),
+    (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/idm.toml,idm.toml"],
+     "--drivers names the driver file 'idm.toml' twice"),
+])
+def test_options_that_would_be_ignored_or_run_twice_are_refused(tmp_path, capsys, monkeypatch, args, message):
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])  # the shipped agents/
+    out = ["--out", str(tmp_path / "o")] if args[0] in ("study", "calibrate") else []
+    assert main([*args, *out]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "o").exists()  # refused before any work
 
 
 def test_camera_writes_pngs(tmp_path, capsys):

@@ -101,6 +101,24 @@ def test_the_cli_refuses_a_bad_protocol_before_any_window(tmp_path, capsys):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.parametrize(("answers", "message"), [
+    ({"nasa_tlx": ANSWERS["nasa_tlx"]}, "no table 'trust_jian2000' (for trial P01-adas)"),
+    ({**ANSWERS, "P01-adas": {"nasa_tlx": {**ANSWERS["nasa_tlx"], "effort": 101}}},
+     "nasa_tlx.effort = "),
+    ({**ANSWERS, "P01-baseline": {"nasa_tlx": {k: v for k, v in ANSWERS["nasa_tlx"].items() if k != "effort"}}},
+     "nasa_tlx.effort missing"),
+])
+def test_an_answers_file_missing_an_answer_is_refused_before_any_trial(tmp_path, capsys, answers, message):
+    # the answers of every trial's questionnaires are checked at the start, not after the trials before
+    f = tmp_path / "a.json"
+    f.write_text(json.dumps(answers))
+    calls: list[tuple] = []
+    with pytest.raises(ConfigError, match=re.escape(f"answers file {f}: ") + r".*" + re.escape(message)):
+        run_session(_base(tmp_path / "s"), 2.0, say=lambda _: None, drive=_fake_drive(set(), calls),
+                    questionnaires=_no_q, answers_from=f)
+    assert calls == [] and not (tmp_path / "s").exists()
+
+
 def test_the_packaged_protocol_reads_and_names_the_shipped_questionnaires():
     p = load_protocol()
     assert p.practice_duration_s == 30.0 and len(p.briefing) == 3 and p.briefing[2].keys

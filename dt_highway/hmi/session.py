@@ -67,7 +67,13 @@ from dt_highway.hmi.drive import (
     trial_settings,
 )
 from dt_highway.hmi.keys import KeyScript
-from dt_highway.hmi.questionnaire import load_answers, load_questionnaire, read_results, run_questionnaires
+from dt_highway.hmi.questionnaire import (
+    load_answers,
+    load_questionnaire,
+    read_results,
+    run_questionnaires,
+    scripted_answers,
+)
 from dt_highway.jsonio import json_safe
 from dt_highway.metrics.trial_log import load_trial
 
@@ -588,6 +594,23 @@ def check_questionnaires(protocol: Protocol) -> None:
         load_questionnaire(name)
 
 
+def check_answers(data: Mapping[str, Any], plan: Sequence[SessionTrial], protocol: Protocol,
+                  where: str = "answers") -> None:
+    """Check a scripted answers table against every questionnaire the session will ask after each
+    of its trials, before the session starts.
+
+    :param data: the table (:func:`~dt_highway.hmi.questionnaire.load_answers`)
+    :param plan: the session's trials (:func:`session_plan`)
+    :param protocol: the session's protocol (which questionnaires follow which trials)
+    :param where: the file, for the error message
+    :raises ConfigError: one line naming the trial, the questionnaire and the missing or bad item
+    """
+    for t in plan:
+        if not t.practice:
+            for name in protocol.questionnaires.for_condition(shows_overlay(t.condition)):
+                scripted_answers(data, load_questionnaire(name), t.name, where=where)
+
+
 def run_session(base: DriveOptions, practice_duration_s: float | None = None,
                 say: Callable[[str], object] = print,
                 conditions: Sequence[str] = DEFAULT_CONDITIONS, protocol: Protocol | None = None,
@@ -612,8 +635,8 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
     protocol = protocol or load_protocol()
     plan = session_plan(base, practice_duration_s, conditions, protocol)
     check_questionnaires(protocol)
-    if answers_from is not None:
-        load_answers(answers_from)  # a file that cannot be read fails now, not after the first trial
+    if answers_from is not None:  # a file that cannot be read or misses an answer fails now, not after a trial
+        check_answers(load_answers(answers_from), plan, protocol, where=f"answers file {answers_from}")
     for moved in recover_staged(Path(base.out)):
         say(f"{moved.name}: left by a process that died, kept as aborted")
     with _Signals() as signals:
@@ -622,6 +645,6 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
 
 
 __all__ = ["DEFAULT_CONDITIONS", "FINISHED", "PRACTICE_SEED_OFFSET", "SESSIONS", "STAGING", "SessionOutcome", "SessionTrial",
-           "attempt_dirs", "attempt_name", "balanced_latin_square", "check_conditions", "check_questionnaires",
-           "completed_attempt", "condition_order", "recover_staged", "run_session", "session_plan", "status_line",
-           "trial_name"]
+           "attempt_dirs", "attempt_name", "balanced_latin_square", "check_answers", "check_conditions",
+           "check_questionnaires", "completed_attempt", "condition_order", "recover_staged", "run_session", "session_plan",
+           "status_line", "trial_name"]
