@@ -216,6 +216,10 @@ def test_scripted_answers_are_checked():
     per_trial = {"P01-adas": {"nasa_tlx": {**TLX, "mental": 0}}, "nasa_tlx": TLX}
     assert scripted_answers(per_trial, tlx, "P01-adas")["mental"] == 0
     assert scripted_answers(per_trial, tlx, "P02-adas")["mental"] == 70
+    # a session's later attempt takes its trial's table, unless it has its own
+    assert scripted_answers(per_trial, tlx, "P01-adas-retry2")["mental"] == 0
+    own = {**per_trial, "P01-adas-retry2": {"nasa_tlx": {**TLX, "mental": 5}}}
+    assert scripted_answers(own, tlx, "P01-adas-retry2")["mental"] == 5
 
 
 def test_a_scripted_run_through_the_screens_writes_the_answers(tmp_path):

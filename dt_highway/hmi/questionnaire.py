@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 import tomllib
 from collections.abc import Iterator, Mapping
@@ -277,12 +278,14 @@ def scripted_answers(data: Mapping[str, Any], definition: Questionnaire, trial: 
 
     :param data: the table
     :param definition: the questionnaire
-    :param trial: the trial directory's name (its own table wins)
+    :param trial: the trial directory's name (its own table wins; a session's later attempt,
+        ``P01-adas-retry1``, takes its trial's, ``P01-adas``, when it has none of its own)
     :param where: the file, for the error message
     :return: item id -> value, for every item
     :raises ConfigError: one line naming the missing or bad key and what is allowed
     """
-    table = data.get(trial, data) if trial else data
+    first_attempt = re.sub(r"-retry\d+$", "", trial)
+    table = data.get(trial, data.get(first_attempt, data)) if trial else data
     answers = table.get(definition.name) if isinstance(table, dict) else None
     if not isinstance(answers, dict):
         raise ConfigError(f"{where}: no table {definition.name!r}" + (f" (for trial {trial})" if trial else ""))
