@@ -64,7 +64,7 @@ from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
 from dt_highway.rl.config import load_train_config
 from dt_highway.rl.files import sidecar_path
-from dt_highway.study import find_file, freeze_inputs, is_completed, plan, run_study
+from dt_highway.study import check_backend, find_file, freeze_inputs, is_completed, plan, run_study
 
 # Heavy modules are imported by the commands that need them, so that ``dt-highway --help`` and
 # the light commands start fast: the report (scipy.stats), the learned detector (torch) and RL
@@ -477,8 +477,7 @@ def cmd_study(args: argparse.Namespace) -> int:
             raise ConfigError("dt-highway study needs --driver FILE and --out DIR (or --quick)")
         driver, scenario = find_file(args.driver, "agents"), find_file_or_default(args.scenario)
         trials, overrides, out = args.trials or 10, list(args.overrides), args.out
-    if args.ray_address and args.backend != "ray":
-        raise ConfigError("--ray-address needs --backend ray (the default process backend runs on this machine)")
+    check_backend(args.backend, args.ray_address)  # Ray and its address: before the progress bar
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     _check_study_out(out)
     # bad driver files and configurations fail here, once, rather than in every trial

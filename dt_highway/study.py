@@ -275,7 +275,9 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     :param progress: called with each trial's result as it finishes
     :param backend: ``process`` (default) or ``ray``
     :param ray_address: an existing Ray cluster's address (``ray`` backend)
+    :raises ConfigError: on a backend that cannot run (:func:`check_backend`) or a resumed study's other settings
     """
+    check_backend(backend, ray_address)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     recorded = check_resume(out, specs)
@@ -296,8 +298,6 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     if backend == "ray":
         _run_ray(specs, ray_address, workers, record)
         return result
-    if backend != "process":
-        raise ConfigError(f"unknown backend {backend!r} (allowed: process, ray)")
     if workers <= 1:
         for s in specs:
             record(run_trial(s))
@@ -431,6 +431,27 @@ def _sigterm_as_ctrl_c(pool: ProcessPoolExecutor) -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def check_backend(backend: str, ray_address: str | None = None) -> None:
+    """Check that a study's backend can run, before any trial: a known backend, Ray installed
+    for ``ray``, and a cluster's address that answers.
+
+    :param backend: ``process`` or ``ray``
+    :param ray_address: an existing Ray cluster's address (``ray`` backend; ``None``: a local Ray)
+    :raises ConfigError: one line naming what is missing
+    """
+    if backend not in ("process", "ray"):
+        raise ConfigError(f"unknown backend {backend!r} (allowed: process, ray)")
+    if ray_address is not None and backend != "ray":
+        raise ConfigError("--ray-address needs --backend ray (the default process backend runs on this machine)")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401  # lazy: optional extra (pip install dt-highway[ray])
+        except ImportError:
+            raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
+        if ray_address is not None and ray_address != "auto":
+            _check_reachable(ray_address)
+
+
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     """Fail fast with one line when a Ray address (``host:port`` or ``ray://host:port``)
     does not answer (Ray itself retries for minutes)."""
@@ -526,12 +547,8 @@ def _run_ray(specs: Sequence[TrialSpec], address: str | None, workers: int,
     they have stopped. Ray starts its workers with SIGINT blocked, so a terminal's Ctrl-C reaches
     only this process: the signal is recorded (:func:`~dt_highway.interrupts.signals_held`) and acted on here.
     """
-    try:
-        import ray  # lazy: optional extra (pip install dt-highway[ray])
-    except ImportError:
-        raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
-    if address is not None and address != "auto":
-        _check_reachable(address)
+    import ray  # lazy: optional extra (pip install dt-highway[ray]); check_backend found it
+
     started = not ray.is_initialized()
     try:
         if started:

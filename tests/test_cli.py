@@ -113,6 +113,8 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["evaluate", "--driver", "agents/idm.toml", "--episodes-json"], "--episodes-json needs --json"),
     (["study", "--quick", "--ray-address", "auto"], "--ray-address needs --backend ray"),
+    (["study", "--quick", "--backend", "ray", "--ray-address", "127.0.0.1:1"], "cannot reach Ray at 127.0.0.1:1"),
+    (["study", "--quick", "--backend", "ray", "--ray-address", "nowhere"], "--ray-address must be host:port"),
     (["replay", "runs/none", "--frames-out", "f", "--speed", "2"], "--speed is for the window"),
     (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2,3,2"], "--knob names the value '2' twice"),
     (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/idm.toml,idm.toml"],
@@ -123,7 +125,7 @@ def test_options_that_would_be_ignored_or_run_twice_are_refused(tmp_path, capsys
     out = ["--out", str(tmp_path / "o")] if args[0] in ("study", "calibrate") else []
     assert main([*args, *out]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err, err
+    assert err.count("\n") == 1 and message in err, err  # the one line alone: no progress bar before it
     assert not (tmp_path / "o").exists()  # refused before any work
 
 
