@@ -25,7 +25,7 @@ from typing import Annotated, Any, Literal, get_args
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from dt_highway.conditions import condition_config
-from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, load_config, read_toml
+from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, find_file, load_config, read_toml
 
 # ----------------------------------------------------------------------------- the Driver action's limits
 ACCEL_MIN_MPS2 = -8.0
@@ -457,9 +457,12 @@ def parse_train_config(tree: dict[str, Any], where: str = "training config") -> 
 def load_train_config(path: str | Path) -> TrainConfig:
     """Read and validate ``agents/<name>.toml`` (``kind = "rl"``).
 
+    A relative path missing here is looked for in the checkout's ``agents/`` (:func:`~dt_highway.config.find_file`);
+    so is the scenario it names, when it is read.
+
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
-    p = Path(path)
+    p = Path(find_file(path, "agents"))
     tree = read_toml(p, "training config")
     if tree.get("kind") != "rl":
         raise ConfigError(f"{p}: a training config needs kind = \"rl\" (got {tree.get('kind')!r}; "

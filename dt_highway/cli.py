@@ -34,7 +34,7 @@ from dt_highway.bench import (
     bench_train,
 )
 from dt_highway.conditions import CONDITIONS, condition_config
-from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, load_config, merge, parse_override
+from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.calibration import calibrate, calibration_table, markdown
@@ -64,7 +64,7 @@ from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
 from dt_highway.rl.config import load_train_config
 from dt_highway.rl.files import sidecar_path
-from dt_highway.study import check_backend, find_file, freeze_inputs, is_completed, plan, run_study
+from dt_highway.study import check_backend, freeze_inputs, is_completed, plan, run_study
 
 # Heavy modules are imported by the commands that need them, so that ``dt-highway --help`` and
 # the light commands start fast: the report (scipy.stats), the learned detector (torch) and RL

@@ -983,14 +983,35 @@ def set_highway_keys(config: DTConfig, values: dict[str, Any]) -> DTConfig:
 
 
 # ----------------------------------------------------------------------------- files and --set
+CHECKOUT = Path(__file__).resolve().parents[1]
+"""The project's folder when it runs from a source checkout (``agents/``, ``envs/`` beside the package)."""
+
+
+def find_file(path: str | Path, folder: str) -> str:
+    """A driver, training or scenario file as given, or, when a relative path does not exist
+    here, the file of the same name in the checkout's ``agents/`` or ``envs/``: the documented
+    ``envs/highway-trial.toml`` works from any folder.
+
+    :param path: the file as the user named it
+    :param folder: ``agents`` or ``envs``
+    :return: the path to read (``path`` itself when neither exists: the error names what was typed)
+    """
+    p = Path(path)
+    if p.exists() or p.is_absolute():
+        return str(p)
+    alt = CHECKOUT / folder / p.name
+    return str(alt) if alt.exists() else str(p)
+
+
 def read_scenario(path: str | Path) -> dict[str, Any]:
     """Read a TOML scenario file.
 
-    :param path: file path (``envs/highway-trial.toml``)
+    :param path: file path (``envs/highway-trial.toml``; a relative one missing here is looked
+        for in the checkout's ``envs/``, :func:`find_file`)
     :return: the nested dict it holds (not yet validated)
     :raises ConfigError: if the file is missing or is not valid TOML
     """
-    p = Path(path)
+    p = Path(find_file(path, "envs"))
     if not p.is_file():
         what = "is not a file" if p.exists() else "does not exist"  # a directory, /dev/null...
         raise ConfigError(f"scenario file '{p}' {what}: give a TOML file, e.g. envs/highway-trial.toml")

@@ -53,18 +53,6 @@ from dt_highway.metrics.trial_log import (
     write_parquet,
 )
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def find_file(path: str, folder: str) -> str:
-    """A driver or scenario path as given, or, when it does not exist here, the same
-    name under the project's own ``agents/`` or ``envs/`` (a checkout's)."""
-    p = Path(path)
-    if p.exists() or p.is_absolute():
-        return str(p)
-    alt = REPO / folder / p.name
-    return str(alt) if alt.exists() else str(p)
-
 
 def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[str, str | None]:
     """Copy the driver and scenario files into ``<out>/inputs/`` and return the copies' paths

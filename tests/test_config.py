@@ -7,7 +7,7 @@ import gymnasium as gym
 import pytest
 
 import dt_highway  # noqa: F401  (registers the env)
-from dt_highway.config import ConfigError, DTConfig, load_config, merge, parse_override, validate
+from dt_highway.config import CHECKOUT, ConfigError, DTConfig, load_config, merge, parse_override, validate
 
 
 def test_defaults_are_valid():
@@ -83,6 +83,23 @@ def test_unreadable_toml(tmp_path):
 def test_missing_scenario_file(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         load_config(tmp_path / "nope.toml")
+
+
+def test_the_documented_relative_paths_work_from_any_folder(tmp_path, monkeypatch):
+    from dt_highway.agent_config import load_train_config
+    from dt_highway.drivers import load_driver
+
+    monkeypatch.chdir(tmp_path)  # not the checkout: envs/ and agents/ are not here
+    assert load_config("envs/highway-trial.toml") == load_config(CHECKOUT / "envs" / "highway-trial.toml")
+    assert load_driver("agents/human.toml").name == "human" and load_driver("idm.toml").name == "idm"
+    train = load_train_config("agents/ppo-baseline.toml")
+    load_config(train.scenario)  # the scenario it names (envs/highway-trial.toml) is found too
+    with pytest.raises(ConfigError, match=r"scenario file 'envs/nope.toml' does not exist"):
+        load_config("envs/nope.toml")  # a name the checkout has not either: the message names what was typed
+    # a file of that name here is the one read
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "highway-trial.toml").write_text("[highway]\nlanes_count = 2\n")
+    assert load_config("envs/highway-trial.toml").highway.lanes_count == 2
 
 
 def test_bad_set_syntax():

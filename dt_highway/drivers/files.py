@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from dt_highway.agent_config import DRIVER_KINDS, HumanDriverFile, IDMDriverFile, parse_driver_file
-from dt_highway.config import ConfigError, read_toml
+from dt_highway.config import ConfigError, find_file, read_toml
 from dt_highway.drivers.base import Driver
 from dt_highway.drivers.policy import load_policy
 from dt_highway.drivers.scripted import HumanDriver, IDMDriver, RandomDriver
@@ -35,9 +35,11 @@ def load_driver(path: str | Path) -> Driver:
     """A driver from its file: ``agents/<name>.toml`` (scripted) or ``agents/<name>.zip`` (a trained
     policy; a pickle: load only files you trust).
 
+    A relative path missing here is looked for in the checkout's ``agents/`` (:func:`~dt_highway.config.find_file`).
+
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
-    p = Path(path)
+    p = Path(find_file(path, "agents"))
     if p.suffix == ".zip":
         return load_policy(p)
     tree = read_toml(p, "driver file")
