@@ -430,10 +430,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     drivers = [find_file(d, "agents") for d in typed]
     found = {d: str(Path(f).resolve()) for d, f in zip(typed, drivers, strict=True)}
     _check_once(typed, "--drivers", "driver file", key=found.__getitem__)  # idm.toml is agents/idm.toml
+    stems: dict[str, str] = {}
+    for d in typed:  # a cell's folder and table row are named after the driver file
+        if stems.setdefault(Path(d).stem, d) != d:
+            raise ConfigError(f"--drivers names two files called {Path(d).stem!r} ({stems[Path(d).stem]}, {d}): the "
+                              "table's rows and cell folders are named after the file, so rename one")
     for d in drivers:
         load_driver(d)
     value_list = [v.strip() for v in values.split(",") if v.strip()]
-    _check_once(value_list, "--knob", "value")
+    _check_once(value_list, "--knob", "value", key=lambda v: _knob_value(key.strip(), v))  # 2 and 2.0 alike
     scenario = find_file_or_default(args.scenario)
     total = len(drivers) * len(value_list) * args.trials
     with _progress(total, "calibrate", args.quiet, unit="trial") as bar:
@@ -447,6 +452,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(md_path.read_text(encoding="utf-8"), end="")
     print(f"wrote {csv_path}, {md_path}")
     return 0
+
+
+def _knob_value(knob: str, text: str) -> str:
+    """A ``--knob`` value as the configuration reads it (``2`` and ``2.0`` the same number)."""
+    tree: Any = parse_override(f"{knob}={text}", "--knob")
+    for part in knob.split("."):
+        tree = tree[part]
+    number = isinstance(tree, int | float) and not isinstance(tree, bool)
+    return repr(float(tree)) if number else repr(tree)
 
 
 def _check_once(items: Sequence[str], option: str, what: str, key: Callable[[str], str] = str) -> None:

@@ -988,16 +988,16 @@ CHECKOUT = Path(__file__).resolve().parents[1]
 
 
 def find_file(path: str | Path, folder: str) -> str:
-    """A driver, training or scenario file as given, or, when a relative path does not exist
-    here, the file of the same name in the checkout's ``agents/`` or ``envs/``: the documented
-    ``envs/highway-trial.toml`` works from any folder.
+    """A driver, training or scenario file as given, or, when ``folder/NAME`` or a bare ``NAME``
+    does not exist here, the checkout's ``folder/NAME``: the documented ``envs/highway-trial.toml``
+    works from any folder. Any other path (``agnets/idm.toml``, ``../envs/x.toml``) is taken as it is.
 
     :param path: the file as the user named it
     :param folder: ``agents`` or ``envs``
     :return: the path to read (``path`` itself when neither exists: the error names what was typed)
     """
     p = Path(path)
-    if p.exists() or p.is_absolute():
+    if p.exists() or p.parent not in (Path("."), Path(folder)):
         return str(p)
     alt = CHECKOUT / folder / p.name
     return str(alt) if alt.exists() else str(p)

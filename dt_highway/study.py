@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 
 from dt_highway.conditions import condition_config
-from dt_highway.config import ConfigError, deep_merge, load_config
+from dt_highway.config import ConfigError, deep_merge, find_file, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
@@ -66,7 +66,8 @@ def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[s
     """
     inputs = Path(out) / "inputs"
     frozen: list[str | None] = []
-    paths: list[str | None] = [driver, scenario]
+    driver = find_file(driver, "agents")  # agents/human.toml from any folder, as load_driver reads it
+    paths: list[str | None] = [driver, None if scenario is None else find_file(scenario, "envs")]
     if Path(driver).suffix == ".zip":  # a trained policy: its metadata goes with it
         paths.append(str(Path(driver).with_suffix(".json")))
     for path in paths:
@@ -433,7 +434,7 @@ def check_backend(backend: str, ray_address: str | None = None) -> None:
         raise ConfigError("--ray-address needs --backend ray (the default process backend runs on this machine)")
     if backend == "ray":
         try:
-            import ray  # noqa: F401  # lazy: optional extra (pip install dt-highway[ray])
+            import ray  # lazy: optional extra (pip install dt-highway[ray]) # noqa: F401
         except ImportError:
             raise ConfigError("--backend ray needs Ray: pip install 'dt-highway[ray]'") from None
         if ray_address is not None and ray_address != "auto":

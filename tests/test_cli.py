@@ -4,6 +4,7 @@ import io
 import json
 import subprocess
 import sys
+import warnings
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
@@ -65,14 +66,32 @@ def test_unknown_scenario_file(capsys):
 
 def _cli(*args):
     """``dt-highway ARGS`` in this process (a child process per case cost ~1.5 s of imports each):
-    its exit status and what it printed. An exception main() lets through fails the test."""
+    its exit status and what it printed, warnings included as a plain interpreter shows them
+    (pytest would keep them off stderr). An exception main() lets through fails the test."""
     out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
+    with warnings.catch_warnings(record=True) as caught, redirect_stdout(out), redirect_stderr(err):
+        warnings.resetwarnings()  # python's own filters, not pytest's
+        warnings.simplefilter("default")
+        for quiet in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+            warnings.simplefilter("ignore", quiet)
         try:
             status = main(list(args))
         except SystemExit as exc:  # argparse's errors
             status = exc.code
-    return subprocess.CompletedProcess(args, status, out.getvalue(), err.getvalue())
+    shown = "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in caught)
+    return subprocess.CompletedProcess(args, status, out.getvalue(), shown + err.getvalue())
+
+
+def test_the_in_process_cli_shows_a_warning_as_the_real_one_does():
+    from unittest import mock
+
+    def noisy(args):
+        warnings.warn("something noisy", UserWarning, stacklevel=1)
+        return 0
+
+    with mock.patch("dt_highway.cli.cmd_report", noisy):
+        proc = _cli("report", "x")
+    assert "UserWarning: something noisy" in proc.stderr
 
 
 def _one_line_error(proc, must_contain):
@@ -117,6 +136,9 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     (["study", "--quick", "--backend", "ray", "--ray-address", "nowhere"], "--ray-address must be host:port"),
     (["replay", "runs/none", "--frames-out", "f", "--speed", "2"], "--speed is for the window"),
     (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2,3,2"], "--knob names the value '2' twice"),
+    (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2,3,2.0"], "--knob names the value '2.0' twice"),
+    (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/human.toml,other/human.toml"],
+     "--drivers names two files called 'human' (agents/human.toml, other/human.toml)"),
     (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/idm.toml,idm.toml"],
      "--drivers names the driver file 'idm.toml' twice"),
 ])

@@ -1,5 +1,6 @@
 """The configuration tree: layers, deep merge, and one-line errors for every mistake."""
 
+import re
 import subprocess
 import sys
 
@@ -96,6 +97,11 @@ def test_the_documented_relative_paths_work_from_any_folder(tmp_path, monkeypatc
     load_config(train.scenario)  # the scenario it names (envs/highway-trial.toml) is found too
     with pytest.raises(ConfigError, match=r"scenario file 'envs/nope.toml' does not exist"):
         load_config("envs/nope.toml")  # a name the checkout has not either: the message names what was typed
+    for typo in ("emvs/highway-trial.toml", "../envs/highway-trial.toml"):  # another folder: no silent stand-in
+        with pytest.raises(ConfigError, match=f"scenario file '{re.escape(typo)}' does not exist"):
+            load_config(typo)
+    with pytest.raises(ConfigError, match="driver file not found: agnets/idm.toml"):
+        load_driver("agnets/idm.toml")
     # a file of that name here is the one read
     (tmp_path / "envs").mkdir()
     (tmp_path / "envs" / "highway-trial.toml").write_text("[highway]\nlanes_count = 2\n")

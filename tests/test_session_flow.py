@@ -119,6 +119,26 @@ def test_an_answers_file_missing_an_answer_is_refused_before_any_trial(tmp_path,
     assert calls == [] and not (tmp_path / "s").exists()
 
 
+def test_a_resumed_session_needs_answers_only_for_the_questionnaires_still_to_ask(tmp_path):
+    base, asked, calls = _base(tmp_path / "s"), [], []
+
+    def answered(size, names, directory, answers):
+        asked.append(directory.name)
+        (directory / "questionnaires.json").write_text(json.dumps({"completed": True, "scores": {}}))
+        return {"completed": True, "scores": {}}
+
+    first = tmp_path / "a1.json"
+    first.write_text(json.dumps(ANSWERS))
+    out = run_session(base, 2.0, say=lambda _: None, drive=_fake_drive({"P01-adas"}, calls), questionnaires=answered,
+                      answers_from=first)
+    assert out.stopped and asked == ["P01-baseline"]  # the baseline's questionnaires are answered; the ADAS trial stopped
+    rest = tmp_path / "a2.json"
+    rest.write_text(json.dumps({"P01-adas": ANSWERS}))  # answers for what is left only
+    assert run_session(base, 2.0, say=lambda _: None, drive=_fake_drive(set(), calls), questionnaires=answered,
+                       answers_from=rest).complete
+    assert asked == ["P01-baseline", "P01-adas-retry1"]
+
+
 def test_the_packaged_protocol_reads_and_names_the_shipped_questionnaires():
     p = load_protocol()
     assert p.practice_duration_s == 30.0 and len(p.briefing) == 3 and p.briefing[2].keys

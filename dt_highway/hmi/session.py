@@ -595,20 +595,24 @@ def check_questionnaires(protocol: Protocol) -> None:
 
 
 def check_answers(data: Mapping[str, Any], plan: Sequence[SessionTrial], protocol: Protocol,
-                  where: str = "answers") -> None:
-    """Check a scripted answers table against every questionnaire the session will ask after each
-    of its trials, before the session starts.
+                  out: Path | None = None, where: str = "answers") -> None:
+    """Check a scripted answers table against every questionnaire the session will still ask after
+    its trials, before the session starts.
 
     :param data: the table (:func:`~dt_highway.hmi.questionnaire.load_answers`)
     :param plan: the session's trials (:func:`session_plan`)
     :param protocol: the session's protocol (which questionnaires follow which trials)
+    :param out: the study directory of a resumed session: trials whose questionnaires were answered
+        there are not asked again, so need no answers (``None``: check every trial)
     :param where: the file, for the error message
     :raises ConfigError: one line naming the trial, the questionnaire and the missing or bad item
     """
     for t in plan:
-        if not t.practice:
-            for name in protocol.questionnaires.for_condition(shows_overlay(t.condition)):
-                scripted_answers(data, load_questionnaire(name), t.name, where=where)
+        done = completed_attempt(out, t.name) if out is not None and not t.practice else None
+        if t.practice or (done is not None and (read_results(done) or {}).get("completed")):
+            continue
+        for name in protocol.questionnaires.for_condition(shows_overlay(t.condition)):
+            scripted_answers(data, load_questionnaire(name), t.name, where=where)
 
 
 def run_session(base: DriveOptions, practice_duration_s: float | None = None,
@@ -636,7 +640,7 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
     plan = session_plan(base, practice_duration_s, conditions, protocol)
     check_questionnaires(protocol)
     if answers_from is not None:  # a file that cannot be read or misses an answer fails now, not after a trial
-        check_answers(load_answers(answers_from), plan, protocol, where=f"answers file {answers_from}")
+        check_answers(load_answers(answers_from), plan, protocol, Path(base.out), where=f"answers file {answers_from}")
     for moved in recover_staged(Path(base.out)):
         say(f"{moved.name}: left by a process that died, kept as aborted")
     with _Signals() as signals:
