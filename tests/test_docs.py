@@ -1,6 +1,7 @@
 """The documentation: the MkDocs site builds with ``--strict`` (no broken link or anchor, no
 docstring the API reference cannot render, every page built), and every ``dt-highway`` command
-that README.md and the pages under docs/ show in a code block still parses."""
+that README.md and the pages under docs/ show in a code block, or write in the text with an option
+(synopses with placeholders aside), still parses."""
 
 from __future__ import annotations
 
@@ -128,6 +129,40 @@ def test_documented_command_parses(where: str, words: list[str]) -> None:
             build_parser().parse_args(words[1:])
         except SystemExit as exc:
             pytest.fail(f"{where}: does not parse (exit {exc.code}): {err.getvalue().strip()}")
+
+
+INLINE = re.compile(r"`(dt-highway [^`]+)`")
+PLACEHOLDER = re.compile(r"^\[|^(?:[A-Z]+|[A-Z]x[A-Z])$")  # a synopsis: [--every K], N, DIR, WxH
+
+
+def inline_commands() -> list[tuple[str, list[str]]]:
+    """The ``dt-highway ...`` commands written in the pages' text (not code blocks) with an
+    option, other than synopses with placeholders (``--frames N``, ``[--sweep]``)."""
+    found = []
+    for p in doc_files():
+        text = FENCE.sub("", p.read_text()).replace("\n", " ")
+        for span in INLINE.findall(text):
+            words = shlex.split(span)
+            if any(w.startswith("--") for w in words) and not any(PLACEHOLDER.match(w) for w in words):
+                found.append((f"{p.relative_to(REPO)}: {span}", words))
+    return found
+
+
+def test_inline_commands_are_found() -> None:
+    assert len(inline_commands()) >= 30  # guards against a pattern that finds none
+
+
+@pytest.mark.parametrize("where,words", inline_commands(), ids=lambda v: v if isinstance(v, str) else "")
+def test_inline_command_parses(where: str, words: list[str]) -> None:
+    """A command written in the text parses as a whole (its required options are there): a reader
+    copies these as they are."""
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            build_parser().parse_args(words[1:])
+        except SystemExit as exc:
+            if exc.code:  # 0: a --help
+                pytest.fail(f"{where}: does not parse (exit {exc.code}): {err.getvalue().strip()}")
 
 
 def test_console_script_help() -> None:
