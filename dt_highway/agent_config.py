@@ -457,8 +457,8 @@ def parse_train_config(tree: dict[str, Any], where: str = "training config") -> 
 def load_train_config(path: str | Path) -> TrainConfig:
     """Read and validate ``agents/<name>.toml`` (``kind = "rl"``).
 
-    A relative path missing here is looked for in the checkout's ``agents/`` (:func:`~dt_highway.config.find_file`);
-    so is the scenario it names, when it is read.
+    ``agents/NAME`` or a bare ``NAME`` missing here is read from the checkout's ``agents/``
+    (:func:`~dt_highway.config.find_file`); the scenario it names likewise from ``envs/``, when it is read.
 
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """

@@ -1006,8 +1006,8 @@ def find_file(path: str | Path, folder: str) -> str:
 def read_scenario(path: str | Path) -> dict[str, Any]:
     """Read a TOML scenario file.
 
-    :param path: file path (``envs/highway-trial.toml``; a relative one missing here is looked
-        for in the checkout's ``envs/``, :func:`find_file`)
+    :param path: file path (``envs/highway-trial.toml``; ``envs/NAME`` or a bare ``NAME`` missing
+        here is read from the checkout's ``envs/``, :func:`find_file`)
     :return: the nested dict it holds (not yet validated)
     :raises ConfigError: if the file is missing or is not valid TOML
     """

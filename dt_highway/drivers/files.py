@@ -35,7 +35,8 @@ def load_driver(path: str | Path) -> Driver:
     """A driver from its file: ``agents/<name>.toml`` (scripted) or ``agents/<name>.zip`` (a trained
     policy; a pickle: load only files you trust).
 
-    A relative path missing here is looked for in the checkout's ``agents/`` (:func:`~dt_highway.config.find_file`).
+    ``agents/NAME`` or a bare ``NAME`` missing here is read from the checkout's ``agents/``
+    (:func:`~dt_highway.config.find_file`).
 
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
