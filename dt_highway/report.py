@@ -778,17 +778,25 @@ def questionnaire_scores(study_dir: str | Path, metrics: pd.DataFrame) -> tuple[
         quest = data.get("questionnaires") if data else None
         for name, entry in (quest.items() if isinstance(quest, dict) else []):
             result = entry.get("score") if isinstance(entry, dict) else None
-            if not isinstance(result, dict) or not isinstance(result.get("score"), (int, float)):
-                continue  # not finished
+            value = result.get("score") if isinstance(result, dict) else None
+            if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+                continue  # not finished (or not a score)
             col = QUESTIONNAIRE_PREFIX + str(name)
             scores.setdefault(col, [math.nan] * len(trials))[row] = float(result["score"])
             info.setdefault(col, {"name": str(name), "title": str(entry.get("title", name)),
                                   "citation": str(entry.get("citation", "")), "label": str(result.get("label", name)),
-                                  "range": [float(v) for v in result.get("range", [-math.inf, math.inf])]})
+                                  "range": _score_range(result.get("range"))})
     out = metrics.copy()
     for col in sorted(scores):
         out[col] = scores[col]
     return out, {c: info[c] for c in sorted(info)}
+
+
+def _score_range(value: Any) -> list[float]:
+    """A questionnaire score's ``[low, high]`` as written, or unbounded when it is not two numbers in order."""
+    ok = (isinstance(value, list) and len(value) == 2
+          and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value) and value[0] < value[1])
+    return [float(value[0]), float(value[1])] if ok else [-math.inf, math.inf]
 
 
 def questionnaire_summary(metrics: pd.DataFrame, questionnaires: dict[str, dict[str, Any]]) -> dict[str, Any] | None:

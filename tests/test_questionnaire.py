@@ -344,6 +344,26 @@ def test_the_report_summarises_questionnaires_per_condition(tmp_path):
     assert metrics.loc["P02-adas", "q_nasa_tlx"] == 45 and math.isnan(metrics.loc["P02-baseline", "q_trust_jian2000"])
 
 
+@pytest.mark.parametrize(("score", "kept"), [
+    ({"score": 40.0, "label": "Raw TLX", "range": [0, "x"]}, True),  # a damaged range: unbounded, the score kept
+    ({"score": 40.0, "label": "Raw TLX", "range": 7}, True),
+    ({"score": 40.0, "label": "Raw TLX", "range": [100, 0]}, True),
+    ({"score": "x", "label": "Raw TLX", "range": [0, 100]}, False),  # not a score: left out
+    ({"score": True, "label": "Raw TLX", "range": [0, 100]}, False),
+])
+def test_a_damaged_questionnaires_file_does_not_sink_the_report(tmp_path, score, kept):
+    root = tmp_path / "study"
+    for cond in ("baseline", "adas"):
+        write_trial(root, "P01", cond)
+        (root / "trials" / f"P01-{cond}" / "questionnaires.json").write_text(
+            json.dumps({"questionnaires": {"nasa_tlx": {"title": "NASA-TLX", "score": score}}}))
+    write_report(root)
+    summary = json.loads((root / "summary.json").read_text())
+    assert ("questionnaires" in summary) == kept
+    if kept:
+        assert summary["questionnaires"]["conditions"]["adas"]["q_nasa_tlx"]["mean"] == 40.0
+
+
 def test_no_questionnaire_files_no_section(tmp_path):
     root = tmp_path / "study"
     for cond in ("baseline", "adas"):

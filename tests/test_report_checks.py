@@ -88,6 +88,61 @@ def test_check_trial_names_what_is_wrong(tmp_path):
     assert check_trial(load_trial(gap)) == "status aborted (interrupted by the user)"
 
 
+def _meta(d, **changes):
+    meta = json.loads((d / "meta.json").read_text())
+    (d / "meta.json").write_text(json.dumps({**meta, **changes}))
+
+
+def _config(d, **highway):
+    meta = json.loads((d / "meta.json").read_text())
+    _meta(d, config={**meta["config"], "highway": {**meta["config"]["highway"], **highway}})
+
+
+@pytest.mark.parametrize(("damage", "reason"), [
+    (lambda d: _config(d, duration=1e12), None),  # counted, not summed for ever: 2e12 rows expected
+    (lambda d: _config(d, duration="long"), "meta.json lacks the configured duration or a frequency, as positive numbers "
+     "(config.highway.duration 'long', simulation_frequency_hz 2, config.highway.policy_frequency 2)"),
+    (lambda d: _config(d, policy_frequency=-1), "config.highway.policy_frequency -1)"),
+    (lambda d: _config(d, duration=float("inf")), "config.highway.duration inf,"),
+    (lambda d: _meta(d, config=[1]), "config.highway.duration None,"),
+    (lambda d: _meta(d, condition=None), "meta.json names no condition (condition: None)"),
+    (lambda d: (d / "steps.csv").write_text((d / "steps.csv").read_text().replace(",20.0,", ",1e400,", 1)),
+     "steps.csv column speed_mps holds an infinite number at line 2"),
+    (lambda d: (d / "events.jsonl").write_text('{"kind": "cut_in", "t_s": 1.0}\n'),
+     "events.jsonl cut_in event 1 names no vehicle (vehicle_id: None)"),
+    (lambda d: (d / "events.jsonl").write_text('{"kind": "collision", "t_s": "x"}\n'),
+     "events.jsonl collision event 1 has no time (t_s: 'x')"),
+    (lambda d: (d / "events.jsonl").write_text("[1]\n"), "events.jsonl event 1 is not a JSON object"),
+])
+def test_damaged_metadata_and_events_are_a_reason_not_a_hang_or_a_crash(tmp_path, damage, reason):
+    d = write_trial(tmp_path, "baseline", 0, 20.0)
+    damage(d)
+    why = check_trial(load_trial(d))
+    if reason is None:
+        assert why == "steps.csv has 20 rows, 2000000000000 expected (1e+12 s at 2 Hz): truncated"
+    else:
+        assert why is not None and reason in why, why
+
+
+def test_expected_rows_refuses_what_is_not_a_duration():
+    for bad in ((math.inf, 15), (3, -15), (math.nan, 15), (0, 15)):
+        with pytest.raises(ValueError, match="positive finite numbers"):
+            expected_rows(*bad)
+    assert expected_rows(1e300, 15, 5) > 0  # at once
+
+
+def test_a_study_with_damaged_trials_still_reports_on_the_others(tmp_path):
+    dirs = make_study(tmp_path, pairs=3)
+    _config(dirs[("adas", 0)], duration="long")
+    _meta(dirs[("adas", 1)], config=[1])
+    (dirs[("adas", 2)] / "events.jsonl").write_text('{"kind": "cut_in", "t_s": 1.0}\n')
+    warnings: list[str] = []
+    write_report(tmp_path, warn=warnings.append)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert sorted(e["trial"] for e in summary["excluded"]) == ["adas-000", "adas-001", "adas-002"]
+    assert summary["conditions"]["baseline"]["n"] == 3 and len(warnings) == 3
+
+
 def test_unreadable_logs_raise_one_error_naming_the_file(tmp_path):
     d = write_trial(tmp_path, "baseline", 0, 20.0)
     (d / "meta.json").write_text('{"status": "completed",')

@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import socket
 import subprocess
@@ -257,9 +258,9 @@ class Trial:
 
     @property
     def planned_duration_s(self) -> float | None:
-        """The trial's configured duration [s] (``None`` when the metadata has no configuration)."""
-        duration = ((self.meta.get("config") or {}).get("highway") or {}).get("duration")
-        return float(duration) if duration is not None else None
+        """The trial's configured duration [s] (``None`` when the metadata has none, or not a
+        positive finite number)."""
+        return _positive_number(_highway_setting(self.meta, "duration"))
 
     def metrics(self) -> dict[str, Any]:
         """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`), and the
@@ -269,6 +270,19 @@ class Trial:
         if "overlay_ids" in self.steps and len(self.steps):
             m.update(overlay_metrics(self.steps, self.dt_s, self.cut_ins))
         return m
+
+
+def _highway_setting(meta: dict[str, Any], key: str) -> Any:
+    """``meta["config"]["highway"][key]``, or ``None`` where a level is missing or not a table."""
+    config = meta.get("config")
+    highway = config.get("highway") if isinstance(config, dict) else None
+    return highway.get(key) if isinstance(highway, dict) else None
+
+
+def _positive_number(value: Any) -> float | None:
+    """``value`` as a float when it is a positive finite number (not ``True``), else ``None``."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    return float(value) if ok else None
 
 
 def _complete_lines(path: Path) -> str:
@@ -329,13 +343,18 @@ def load_trial(directory: str | Path) -> Trial:
             raise TrialLogError(d / STEPS, f"is not a readable CSV ({str(exc).strip().splitlines()[-1]})") from None
     else:
         steps = pd.DataFrame(columns=list(STEP_COLUMNS))
+    try:
+        lines = _complete_lines(d / EVENTS).splitlines()
+    except OSError as exc:
+        raise TrialLogError(d / EVENTS, f"cannot be read ({exc.strerror or exc})") from None
     events = []
-    for line in _complete_lines(d / EVENTS).splitlines():
+    for line in lines:
         if line.strip():
             try:
-                events.append(json.loads(line))
+                event = json.loads(line)
             except json.JSONDecodeError:
-                continue
+                continue  # a torn line (a crash while writing): the events before and after stand
+            events.append(event if isinstance(event, dict) else {"kind": "not an object", "value": event})
     return Trial(steps, events, meta, d)
 
 
@@ -355,6 +374,10 @@ def _check_fields(path: Path, text: str) -> None:
         raise TrialLogError(path, f"is not a readable CSV ({exc})") from None
 
 
+MAX_DECISIONS = 10_000_000
+"""Above this many policy steps :func:`expected_rows` counts instead of summing (a week at 15 Hz is 9 million)"""
+
+
 def expected_rows(duration_s: float, simulation_hz: float, policy_hz: float | None = None) -> int:
     """Rows of ``steps.csv`` of a trial that ran its whole duration: one per simulation step.
 
@@ -366,8 +389,14 @@ def expected_rows(duration_s: float, simulation_hz: float, policy_hz: float | No
     :param simulation_hz: simulation frequency [Hz]
     :param policy_hz: policy frequency [Hz] (``None``: one decision per simulation step)
     :return: the number of rows
+    :raises ValueError: on a duration or frequency that is not a positive finite number
     """
     policy_hz = policy_hz or simulation_hz
+    if not all(math.isfinite(v) and v > 0 for v in (duration_s, simulation_hz, policy_hz)):
+        raise ValueError(f"expected_rows needs positive finite numbers (got duration_s={duration_s}, "
+                         f"simulation_hz={simulation_hz}, policy_hz={policy_hz})")
+    if duration_s * policy_hz > MAX_DECISIONS:  # beyond any trial: the count, not the float sums of a long loop
+        return math.ceil(duration_s * policy_hz) * int(simulation_hz // policy_hz)
     clock, steps = 0.0, 0
     while clock < duration_s:  # the same float sums as highway-env's clock
         clock += 1 / policy_hz
@@ -384,12 +413,30 @@ def _not_numbers(steps: pd.DataFrame) -> str | None:
         if c in FILLED_COLUMNS + BOOL_COLUMNS and col.isna().any():
             return f"steps.csv column {c} is empty at line {int(np.flatnonzero(col.isna().to_numpy())[0]) + 2}"
         ok = pd.api.types.is_bool_dtype(col) if c in BOOL_COLUMNS else pd.api.types.is_numeric_dtype(col)
+        if ok and c in FILLED_COLUMNS and np.isinf(col.to_numpy(float)).any():
+            return f"steps.csv column {c} holds an infinite number at line {int(np.flatnonzero(np.isinf(col))[0]) + 2}"
         if not ok:
             good = (col.astype(str).isin(["True", "False"]) if c in BOOL_COLUMNS
                     else pd.to_numeric(col, errors="coerce").notna())
             bad = np.flatnonzero((~good & col.notna()).to_numpy())
             where = f": line {int(bad[0]) + 2} holds {str(col.iloc[bad[0]])[:20]!r}" if len(bad) else ""
             return f"steps.csv column {c} is not {'True/False' if c in BOOL_COLUMNS else 'numbers'}{where}"
+    return None
+
+
+def _bad_event(events: list[dict[str, Any]]) -> str | None:
+    """Why the events the metrics read (cut-ins, collisions) are not as the recorder writes them, or ``None``."""
+    for k, e in enumerate(events):
+        if e.get("kind") == "not an object":
+            return f"events.jsonl event {k + 1} is not a JSON object"
+        if e.get("kind") not in ("cut_in", "collision"):
+            continue
+        t = e.get("t_s")
+        if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
+            return f"events.jsonl {e['kind']} event {k + 1} has no time (t_s: {t!r})"
+        vid = e.get("vehicle_id")
+        if e["kind"] == "cut_in" and (not isinstance(vid, int) or isinstance(vid, bool)):
+            return f"events.jsonl cut_in event {k + 1} names no vehicle (vehicle_id: {vid!r})"
     return None
 
 
@@ -423,12 +470,19 @@ def check_trial(trial: Trial) -> str | None:
     written = meta.get("n_steps")
     if isinstance(written, int) and written != n:
         return f"steps.csv has {n} rows, meta.json counts {written} written"
-    duration, hz = trial.planned_duration_s, meta.get("simulation_frequency_hz")
-    if duration is None or not isinstance(hz, (int, float)) or hz <= 0:
-        return ("meta.json lacks the configured duration or simulation frequency (config.highway.duration, "
-                "simulation_frequency_hz)")
-    policy_hz = ((meta.get("config") or {}).get("highway") or {}).get("policy_frequency")
-    want = expected_rows(duration, float(hz), float(policy_hz) if policy_hz else None)
+    if not isinstance(meta.get("condition"), str) or not meta["condition"]:
+        return f"meta.json names no condition (condition: {meta.get('condition')!r})"
+    duration, hz = trial.planned_duration_s, _positive_number(meta.get("simulation_frequency_hz"))
+    policy = _highway_setting(meta, "policy_frequency")
+    policy_hz = _positive_number(policy)
+    if duration is None or hz is None or (policy is not None and policy_hz is None):
+        return ("meta.json lacks the configured duration or a frequency, as positive numbers (config.highway.duration "
+                f"{_highway_setting(meta, 'duration')!r}, simulation_frequency_hz {meta.get('simulation_frequency_hz')!r}, "
+                f"config.highway.policy_frequency {policy!r})")
+    bad_event = _bad_event(trial.events)
+    if bad_event:
+        return bad_event
+    want = expected_rows(duration, hz, policy_hz)
     crashed_at_end = bool(steps["crashed"].iloc[-1])
     if n > want or (n < want and not crashed_at_end):
         return (f"steps.csv has {n} rows, {want} expected ({duration:g} s at {float(hz):g} Hz)"
