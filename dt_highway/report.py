@@ -778,11 +778,13 @@ def questionnaire_scores(study_dir: str | Path, metrics: pd.DataFrame) -> tuple[
         quest = data.get("questionnaires") if data else None
         for name, entry in (quest.items() if isinstance(quest, dict) else []):
             result = entry.get("score") if isinstance(entry, dict) else None
-            value = result.get("score") if isinstance(result, dict) else None
+            if not isinstance(result, dict) or not isinstance(entry, dict):
+                continue  # not finished
+            value = result.get("score")
             if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
                 continue  # not finished (or not a score)
             col = QUESTIONNAIRE_PREFIX + str(name)
-            scores.setdefault(col, [math.nan] * len(trials))[row] = float(result["score"])
+            scores.setdefault(col, [math.nan] * len(trials))[row] = float(value)
             info.setdefault(col, {"name": str(name), "title": str(entry.get("title", name)),
                                   "citation": str(entry.get("citation", "")), "label": str(result.get("label", name)),
                                   "range": _score_range(result.get("range"))})

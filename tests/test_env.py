@@ -407,3 +407,28 @@ def test_the_offscreen_rendering_variable_gives_highway_envs_deprecation_warning
         warnings.simplefilter("always")
         DTHighwayEnv(config={"twin": {"preroll_s": 0.0}}).close()
     assert not any("OFFSCREEN_RENDERING" in str(x.message) for x in w)
+
+
+@pytest.mark.parametrize(("action_type", "bad", "takes"), [
+    ({"type": "DiscreteMetaAction"}, 7, "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, -1, "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, 1.5, "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, "LEFT", "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, np.array([1, 2]), "one integer 0..4"),
+    ({"type": "ContinuousAction"}, np.array([np.nan, np.nan]), "2 finite numbers"),
+    ({"type": "ContinuousAction"}, np.array([0.1]), "2 finite numbers"),
+    ({"type": "ContinuousAction"}, "ab", "2 finite numbers"),
+    ({"type": "Driver"}, [np.inf, 0.0], "2 finite numbers"),
+])
+def test_an_action_the_space_cannot_hold_is_one_line_and_leaves_the_env_as_it_was(small_config, action_type, bad, takes):
+    env = gym.make("dt-highway-v0", config={**small_config, "highway": {**small_config.get("highway", {}),
+                                                                        "action": action_type}})
+    env.reset(seed=0)
+    before, clock = np.array(env.unwrapped.vehicle.position), env.unwrapped.time
+    with pytest.raises(ValueError, match=f"is not in the {action_type['type']}\\w* action space .*: {takes}$"):
+        env.step(bad)
+    assert np.array_equal(env.unwrapped.vehicle.position, before) and env.unwrapped.time == clock  # nothing changed
+    good = 1 if action_type["type"] == "DiscreteMetaAction" else np.zeros(2)
+    obs, reward, *_ = env.step(good)
+    assert np.isfinite(reward) and np.isfinite(np.asarray(obs, dtype=float)).all()
+    env.close()

@@ -100,8 +100,9 @@ def _config(d, **highway):
 
 @pytest.mark.parametrize(("damage", "reason"), [
     (lambda d: _config(d, duration=1e12), None),  # counted, not summed for ever: 2e12 rows expected
-    (lambda d: _config(d, duration="long"), "meta.json lacks the configured duration or a frequency, as positive numbers "
-     "(config.highway.duration 'long', simulation_frequency_hz 2, config.highway.policy_frequency 2)"),
+    (lambda d: _config(d, duration="long"), ("meta.json lacks the configured duration or a frequency, as positive numbers "
+                                             "(config.highway.duration 'long', simulation_frequency_hz 2, "
+                                             "config.highway.policy_frequency 2)")),
     (lambda d: _config(d, policy_frequency=-1), "config.highway.policy_frequency -1)"),
     (lambda d: _config(d, duration=float("inf")), "config.highway.duration inf,"),
     (lambda d: _meta(d, config=[1]), "config.highway.duration None,"),

@@ -27,6 +27,38 @@ if TYPE_CHECKING:
     from dt_highway.env.core import DTHighwayEnv
 
 
+def check_action(space: spaces.Space, action: Any, kind: str = "") -> None:
+    """Refuse, in one line, an action the env's action space cannot hold, before highway-env acts
+    on it (it would fail deep inside, or carry a NaN into the ego's state for good).
+
+    A ``Discrete`` space takes one integer in its range (a float only when whole: ``2.0``); a
+    ``Box`` as many finite numbers as its shape holds (outside the bounds is clipped by the action
+    type, as highway-env does). Other spaces are left to their action type.
+
+    :param space: the env's action space
+    :param action: what was passed to ``step``
+    :param kind: the action type's name, for the message
+    :raises ValueError: naming the action, the space and what it takes
+    """
+    name = f"{kind} " if kind else ""
+    try:
+        a = np.asarray(action, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if isinstance(space, spaces.Discrete):
+        first, last = int(space.start), int(space.start + space.n - 1)
+        ok = (a is not None and a.size == 1 and np.isfinite(a).all() and float(a.reshape(-1)[0]).is_integer()
+              and first <= a.reshape(-1)[0] <= last)
+        if not ok:
+            raise ValueError(f"action {action!r} is not in the {name}action space {space}: "
+                             f"one integer {first}..{last}")
+    elif isinstance(space, spaces.Box):
+        size = int(np.prod(space.shape))
+        if a is None or a.size != size or not np.isfinite(a).all():
+            raise ValueError(f"action {action!r} is not in the {name}action space {space}: "
+                             f"{size} finite number{'s' if size > 1 else ''}")
+
+
 class DrivenVehicle(ControlledVehicle):
     """The ego under a driver: commanded acceleration, lane changes, lane keeping.
 

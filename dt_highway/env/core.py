@@ -40,7 +40,7 @@ from dt_highway.camera.render import (
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.camera.truth import CameraTruth
 from dt_highway.config import CameraConfig, ConfigError, DTConfig, HighwayConfig, merge, set_highway_keys
-from dt_highway.env.actions import DiscreteDriverAction, DriverAction
+from dt_highway.env.actions import DiscreteDriverAction, DriverAction, check_action
 from dt_highway.env.adas import AdasPipeline
 from dt_highway.env.flat_config import FlatConfig
 from dt_highway.env.observations import (
@@ -493,6 +493,17 @@ class DTHighwayEnv(HighwayEnv):
     def twin_now_s(self) -> float:
         """Twin clock [s] at the current simulation time."""
         return self.twin_offset_s + self.sim_time_s
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        """highway-env's step, after a check that the action fits the action space
+        (:func:`~dt_highway.env.actions.check_action`), unless the ego drives itself
+        (``ego.autopilot``, ``manual_control``): a bad action changes nothing, not even the clock.
+
+        :raises ValueError: one line, on an action the action space cannot hold
+        """
+        if not self.config["manual_control"] and not self.dt_config.ego.autopilot:
+            check_action(self.action_space, action, type(self.action_type).__name__)
+        return super().step(action)
 
     def _simulate(self, action: Any = None) -> None:
         frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
