@@ -70,19 +70,19 @@ class IDMParams(FrozenSettings):
     """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000, Phys. Rev. E 62, 1805).
 
     :param desired_speed_mps: ``v0`` [m/s], > 0
-    :param time_headway_s: ``T`` [s]
+    :param time_headway_s: ``T`` [s], > 0
     :param min_gap_m: ``s0`` [m]
-    :param max_accel_mps2: ``a`` [m/s^2]
-    :param comfort_decel_mps2: ``b`` [m/s^2]
-    :param delta: acceleration exponent [-]
+    :param max_accel_mps2: ``a`` [m/s^2], > 0
+    :param comfort_decel_mps2: ``b`` [m/s^2], > 0
+    :param delta: acceleration exponent [-], > 0
     """
 
     desired_speed_mps: NonNegative = Field(default=30.0, gt=0)
-    time_headway_s: NonNegative = 1.6
+    time_headway_s: NonNegative = Field(default=1.6, gt=0)
     min_gap_m: NonNegative = 2.0
-    max_accel_mps2: NonNegative = 0.73
-    comfort_decel_mps2: NonNegative = 1.67
-    delta: NonNegative = 4.0
+    max_accel_mps2: NonNegative = Field(default=0.73, gt=0)
+    comfort_decel_mps2: NonNegative = Field(default=1.67, gt=0)
+    delta: NonNegative = Field(default=4.0, gt=0)  # 0: (v/v0)^0 = 1, no acceleration on a free road
 
 
 class HumanParams(FrozenSettings):

@@ -23,6 +23,7 @@ files) have their models in :mod:`dt_highway.agent_config`, with the same error 
 from __future__ import annotations
 
 import copy
+import math
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -187,6 +188,9 @@ class HighwayConfig(_Section):
             )
         if self.initial_lane_id is not None and self.initial_lane_id >= self.lanes_count:
             raise ValueError(f"initial_lane_id must be < lanes_count = {self.lanes_count} (got {self.initial_lane_id})")
+        low, high = self.reward_speed_range
+        if not (math.isfinite(low) and math.isfinite(high) and low < high):  # the speed reward divides by high - low
+            raise ValueError(f"reward_speed_range must be [low, high] m/s with low < high (got {[low, high]})")
         return self
 
 

@@ -21,6 +21,7 @@ Ray backend, SIGTERM does the same, and so does SIGINT when the study was starte
 from __future__ import annotations
 
 import json
+import numbers
 import os
 import signal
 import socket
@@ -235,14 +236,26 @@ class StudyResult:
     failed: list[dict[str, str]] = field(default_factory=list)
 
 
+def _whole(value: object) -> bool:
+    """An integer (numpy's too), not ``True``/``False``."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
 def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, seed: int,
          scenario: str | None = None, overrides: Sequence[str] = (), parquet: bool = False) -> list[TrialSpec]:
     """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``).
 
     :param conditions: any of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``,
         ``adas-type``, ``adas-threat``, ``sham``...), each once
-    :raises ConfigError: on an unknown or repeated condition, or ``trials < 1``
+    :raises ConfigError: on an unknown or repeated condition, ``trials < 1``, or a seed that is not an integer >= 0
     """
+    if isinstance(conditions, str):
+        raise ConfigError(f"conditions must be a list of names, e.g. ['baseline', 'adas'] (got the string {conditions!r})")
+    if not _whole(trials):
+        raise ConfigError(f"--trials must be a whole number >= 1 (got {trials!r})")
+    if not _whole(seed) or seed < 0:
+        raise ConfigError(f"--seed must be a whole number >= 0 (got {seed!r})")
+    trials, seed = int(trials), int(seed)  # numpy integers too
     for c in conditions:
         condition_config(c)
     if len(set(conditions)) != len(conditions) or not conditions:
@@ -267,6 +280,8 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     :raises ConfigError: on a backend that cannot run (:func:`check_backend`) or a resumed study's other settings
     """
     check_backend(backend, ray_address)
+    if not _whole(workers) or workers < 1:
+        raise ConfigError(f"--workers must be a whole number >= 1 (got {workers!r})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     recorded = check_resume(out, specs)

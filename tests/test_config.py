@@ -108,6 +108,20 @@ def test_the_documented_relative_paths_work_from_any_folder(tmp_path, monkeypatc
     assert load_config("envs/highway-trial.toml").highway.lanes_count == 2
 
 
+def test_nonsense_that_highway_env_or_the_idm_would_take_silently_is_refused(tmp_path):
+    for low_high in ("[30, 20]", "[20, 20]"):  # the speed reward divides by high - low
+        with pytest.raises(ConfigError, match=r"reward_speed_range must be \[low, high\] m/s with low < high"):
+            load_config(overrides=[f"highway.reward_speed_range={low_high}"])
+    from dt_highway.drivers import load_driver
+
+    idm = (CHECKOUT / "agents" / "idm.toml").read_text()
+    for key in ("delta", "time_headway_s", "max_accel_mps2", "comfort_decel_mps2"):  # 0: no acceleration, or / 0
+        f = tmp_path / f"{key}.toml"
+        f.write_text(re.sub(rf"^{key} = [0-9.]+", f"{key} = 0", idm, flags=re.M))
+        with pytest.raises(ConfigError, match=rf"idm.{key} = 0.0 is out of range: must be > 0"):
+            load_driver(f)
+
+
 def test_bad_set_syntax():
     with pytest.raises(ConfigError, match="dotted.key=value"):
         load_config(overrides=["twin.uplink.rate_hz"])

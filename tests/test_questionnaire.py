@@ -211,6 +211,9 @@ def test_scripted_answers_are_checked():
         scripted_answers({"nasa_tlx": {k: v for k, v in TLX.items() if k != "effort"}}, tlx, where="a.json")
     with pytest.raises(ConfigError, match=r"nasa_tlx.mental = 7 is not on the scale"):
         scripted_answers({"nasa_tlx": {**TLX, "mental": 7}}, tlx, where="a.json")
+    for odd in (math.inf, math.nan):  # TOML's inf and nan: on no scale (an OverflowError before)
+        with pytest.raises(ConfigError, match=rf"nasa_tlx.mental = {odd} is not on the scale"):
+            scripted_answers({"nasa_tlx": {**TLX, "mental": odd}}, tlx, where="a.json")
     with pytest.raises(ConfigError, match=r"no table 'nasa_tlx'"):
         scripted_answers({"trust_jian2000": TRUST}, tlx, where="a.json")
     per_trial = {"P01-adas": {"nasa_tlx": {**TLX, "mental": 0}}, "nasa_tlx": TLX}

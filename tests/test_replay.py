@@ -1,6 +1,7 @@
 """Replay of a logged keyboard trial from its seed, config and logged actions (hmi/replay.py, dt-highway replay)."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -108,6 +109,16 @@ def test_bad_trial_dirs_are_one_line_errors(trial_dir, tmp_path, capsys):
     assert "--every-s S needs --frames-out DIR" in _one_line_error(capsys, ["replay", str(trial_dir), "--every-s", "1"])
     with pytest.raises(ReplayError, match="no meta.json"):
         read_logged_trial(tmp_path / "empty")
+    # a damaged frequency or key time: one line naming the file, not a ValueError from float()
+    bad = tmp_path / "bad"
+    shutil.copytree(trial_dir, bad)
+    (bad / "meta.json").write_text(json.dumps({**meta, "simulation_frequency_hz": "x"}))
+    assert "meta.json: simulation_frequency_hz must be a positive number of Hz (got 'x')" in _one_line_error(
+        capsys, ["replay", str(bad)])
+    (bad / "meta.json").write_text(json.dumps(meta))
+    with (bad / "events.jsonl").open("a") as f:
+        f.write('{"kind": "key_down", "t_s": "x", "key": "UP"}\n')
+    assert "events.jsonl: a key_down event has no time (t_s: 'x')" in _one_line_error(capsys, ["replay", str(bad)])
 
 
 def test_the_window_replay_runs_and_esc_stops_it(trial_dir):

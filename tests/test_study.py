@@ -1,7 +1,9 @@
 """The study runner, trial logs of real trials, the drivers and the report, on tiny studies."""
 
 import json
+import re
 
+import numpy as np
 import pytest
 
 from dt_highway.cli import main
@@ -101,6 +103,22 @@ def test_the_ray_backend_runs_the_same_trials_on_a_local_ray(tmp_path):
     assert ray_steps.equals(load_trial(local.completed[0]).steps)  # same seed, same trial, wherever it ran
     with pytest.raises(ConfigError, match="cannot reach Ray at 127.0.0.1:1"):
         run_study(specs, out, backend="ray", ray_address="127.0.0.1:1")  # fails at once, Ray would retry for minutes
+
+
+@pytest.mark.parametrize(("kw", "message"), [
+    ({"seed": 1.5}, "--seed must be a whole number >= 0 (got 1.5)"),
+    ({"seed": -1}, "--seed must be a whole number >= 0 (got -1)"),
+    ({"trials": "3"}, "--trials must be a whole number >= 1 (got '3')"),
+    ({"conditions": "adas"}, "conditions must be a list of names"),
+])
+def test_plan_refuses_what_the_cli_would(tmp_path, kw, message):
+    args = {"out": tmp_path, "driver": "agents/idm.toml", "conditions": ["adas"], "trials": 1, "seed": 0, **kw}
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        plan(**args)
+    with pytest.raises(ConfigError, match=re.escape("--workers must be a whole number >= 1 (got 0)")):
+        run_study([], tmp_path / "s", workers=0)
+    assert not (tmp_path / "s").exists()
+    assert plan(tmp_path, "agents/idm.toml", ["adas"], np.int64(2), np.int64(5))[1].seed == 6  # numpy integers are fine
 
 
 def test_a_study_runs_on_copies_of_its_inputs_and_refuses_changed_ones(tmp_path):

@@ -35,6 +35,7 @@ how often it was changed.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import time
@@ -108,8 +109,8 @@ class Scale(BaseModel):
 
         :raises ValueError: naming the allowed values
         """
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) \
-                or int(value) not in range(self.min, self.max + 1, self.step):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or value != int(value) or int(value) not in range(self.min, self.max + 1, self.step):
             raise ValueError(f"{value!r} is not on the scale (allowed: {self.min} to {self.max} in steps of {self.step})")
         return int(value)
 

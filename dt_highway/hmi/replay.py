@@ -143,6 +143,17 @@ def _is_number(text: str | None) -> bool:
     return True
 
 
+def _frequency(path: Path, key: str, value: Any) -> float:
+    """A logged frequency [Hz], checked to be a positive finite number.
+
+    :raises ReplayError: naming the file and the key
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    if not ok:
+        raise ReplayError(f"{path}: {key} must be a positive number of Hz (got {value!r})")
+    return float(value)
+
+
 def read_logged_trial(directory: str | Path) -> LoggedTrial:
     """Read what a replay needs from a keyboard trial's directory.
 
@@ -156,8 +167,9 @@ def read_logged_trial(directory: str | Path) -> LoggedTrial:
     p = d / "steps.csv"
     rows = _read_steps(p)
     hw = meta["config"].get("highway") or {}
-    f_sim = float(meta.get("simulation_frequency_hz") or hw.get("simulation_frequency") or 15)
-    f_pol = float(hw.get("policy_frequency") or f_sim)
+    f_sim = _frequency(d / "meta.json", "simulation_frequency_hz",
+                       meta.get("simulation_frequency_hz") or hw.get("simulation_frequency") or 15)
+    f_pol = _frequency(d / "meta.json", "config.highway.policy_frequency", hw.get("policy_frequency") or f_sim)
     per = max(1, int(round(f_sim / f_pol)))
     accel, lane = _numbers(p, rows, "action_accel_mps2"), _numbers(p, rows, "action_lane")
     actions = np.stack([accel, lane], axis=1)[::per]  # an env step's rows share its action
@@ -172,7 +184,10 @@ def read_logged_trial(directory: str | Path) -> LoggedTrial:
             except json.JSONDecodeError:
                 continue
             if isinstance(e, dict) and e.get("kind") in ("key_down", "key_up"):
-                key_events.append((float(e.get("t_s", 0.0)), e["kind"] == "key_down", str(e.get("key", ""))))
+                t = e.get("t_s", 0.0)
+                if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
+                    raise ReplayError(f"{events}: a {e['kind']} event has no time (t_s: {t!r})")
+                key_events.append((float(t), e["kind"] == "key_down", str(e.get("key", ""))))
     return LoggedTrial(d, meta, actions, positions, _numbers(p, rows, "t_s")[ends],
                        [r["keys"] or "" for r in rows][ends], key_events, per)
 
