@@ -116,7 +116,10 @@ also takes ``threat``)"""
 
 def _check_kinematics_options(table: dict[str, Any]) -> None:
     """Refuse what highway-env's Kinematics would silently accept or fail on later: an unknown
-    option, ``vehicles_count`` below 1, an ``order`` other than sorted/shuffled."""
+    option, ``vehicles_count`` below 1, an ``order`` other than sorted/shuffled, ``features`` that
+    is not a non-empty list of names (``[]`` fell back to the defaults, ``"xy"`` read as ``x``, ``y``),
+    a ``features_range`` that is not ``{name: [low, high]}`` with low < high, and a switch that is
+    not true or false."""
     overlay = table.get("type") == "OverlayKinematics"
     allowed = (*KINEMATICS_OPTIONS, "threat") if overlay else KINEMATICS_OPTIONS
     for key in table:
@@ -130,6 +133,24 @@ def _check_kinematics_options(table: dict[str, Any]) -> None:
         raise PydanticCustomError("bad_option", "must be a whole number >= 1", {"key": "vehicles_count", "got": count})
     if table.get("order", "sorted") not in ("sorted", "shuffled"):
         raise PydanticCustomError("bad_option", "must be 'sorted' or 'shuffled'", {"key": "order", "got": table["order"]})
+    features = table.get("features", ["presence"])
+    if not isinstance(features, list) or not features or not all(isinstance(f, str) and f for f in features):
+        raise PydanticCustomError("bad_option", "must be a non-empty list of feature names, e.g. [\"presence\", \"x\", \"y\"]",
+                                  {"key": "features", "got": features})
+    ranges = table.get("features_range", {})
+    if ranges is not None and (not isinstance(ranges, dict) or not all(_low_high(r) for r in ranges.values())):
+        raise PydanticCustomError("bad_option", "must be {feature: [low, high]} with low < high",
+                                  {"key": "features_range", "got": ranges})
+    for switch in ("absolute", "normalize", "clip", "see_behind", "observe_intentions", "include_obstacles"):
+        if not isinstance(table.get(switch, False), bool):
+            raise PydanticCustomError("bad_option", "must be true or false", {"key": switch, "got": table[switch]})
+
+
+def _low_high(value: Any) -> bool:
+    """Whether ``value`` is ``[low, high]``, two finite numbers with low < high."""
+    return (isinstance(value, list | tuple) and len(value) == 2
+            and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+            and value[0] < value[1])
 
 
 # ----------------------------------------------------------------------------- highway-env

@@ -270,10 +270,16 @@ def test_settings_take_positional_values_as_the_dataclasses_did():
     ({"type": "OverlayKinematics", "vehicles_count": 2.5}, "highway.observation.vehicles_count = 2.5"),
     ({"type": "Kinematics", "bogus": 1}, "highway.observation.bogus = 1: not a Kinematics option (allowed: type, features"),
     ({"vehicles_count": 3, "order": "random"}, "highway.observation.order = 'random': must be 'sorted' or 'shuffled'"),
+    ({"type": "Kinematics", "features": []}, "highway.observation.features = []: must be a non-empty list of feature names"),
+    ({"type": "Kinematics", "features": "xy"}, "highway.observation.features = 'xy': must be a non-empty list"),
+    ({"type": "Kinematics", "normalize": "yes"}, "highway.observation.normalize = 'yes': must be true or false"),
+    ({"type": "Kinematics", "features_range": {"x": [5, 5]}}, "features_range = {'x': [5, 5]}: must be {feature: [low, high]"),
+    ({"type": "Kinematics", "features_range": "x"}, "highway.observation.features_range = 'x': must be"),
 ])
 def test_kinematics_options_are_checked_when_configured(observation, must_contain):
     with pytest.raises(ConfigError) as info:
         validate({"highway": {"observation": observation}})
     assert "\n" not in str(info.value) and must_contain in str(info.value), str(info.value)
-    fine = {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled"}
+    fine = {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled", "features": ["presence", "x"],
+            "features_range": {"x": [-100, 100]}, "normalize": False}
     validate({"highway": {"observation": fine}})
