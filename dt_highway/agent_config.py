@@ -18,7 +18,6 @@ Training files (``kind = "rl"``): :class:`TrainConfig`.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -26,6 +25,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter,
 
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, find_file, load_config, read_toml
+from dt_highway.jsonio import finite_number
 
 # ----------------------------------------------------------------------------- the Driver action's limits
 ACCEL_MIN_MPS2 = -8.0
@@ -40,15 +40,17 @@ DEFAULT_SPEEDS_MPS = (18.0, 23.0, 27.0, 31.0)
 
 # ----------------------------------------------------------------------------- numbers of driver files
 def _non_negative(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+    number = finite_number(value)
+    if number is None or number < 0:
         raise ValueError("must be a finite number >= 0")
-    return float(value)
+    return number
 
 
 def _finite(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    number = finite_number(value)
+    if number is None:
         raise ValueError("must be a finite number")
-    return float(value)
+    return number
 
 
 def _flag(value: Any) -> bool:

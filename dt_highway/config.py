@@ -42,6 +42,8 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from dt_highway.jsonio import finite_number
+
 _S = TypeVar("_S", bound=BaseModel)
 
 
@@ -149,8 +151,7 @@ def _check_kinematics_options(table: dict[str, Any]) -> None:
 def _low_high(value: Any) -> bool:
     """Whether ``value`` is ``[low, high]``, two finite numbers with low < high."""
     return (isinstance(value, list | tuple) and len(value) == 2
-            and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
-            and value[0] < value[1])
+            and all(finite_number(v) is not None for v in value) and value[0] < value[1])
 
 
 # ----------------------------------------------------------------------------- highway-env

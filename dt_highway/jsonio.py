@@ -1,4 +1,5 @@
-"""Strict JSON for the files and printouts of the commands (NaN and infinities become ``null``)."""
+"""Strict JSON for the files and printouts of the commands (NaN and infinities become ``null``), and
+the check of a number read back from a user's or a log's JSON or TOML."""
 
 from __future__ import annotations
 
@@ -16,6 +17,20 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
     return obj
+
+
+def finite_number(value: Any) -> float | None:
+    """A value read from JSON or TOML as a float when it is a finite number (``true``/``false``,
+    text, NaN and infinities are not), else ``None``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def positive_number(value: Any) -> float | None:
+    """:func:`finite_number`, when it is also > 0 (a duration, a frequency), else ``None``."""
+    number = finite_number(value)
+    return number if number is not None and number > 0 else None
 
 
 def dump_json(obj: Any) -> str:

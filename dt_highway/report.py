@@ -58,7 +58,7 @@ from dt_highway._version import __version__
 from dt_highway.conditions import CONDITIONS
 from dt_highway.config import ConfigError
 from dt_highway.hmi.questionnaire import read_results
-from dt_highway.jsonio import dump_json
+from dt_highway.jsonio import dump_json, finite_number
 from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S, marked_ids, warned_cut_ins
 from dt_highway.metrics.safety import (
     CONFLICT_TTC_S,
@@ -780,11 +780,11 @@ def questionnaire_scores(study_dir: str | Path, metrics: pd.DataFrame) -> tuple[
             result = entry.get("score") if isinstance(entry, dict) else None
             if not isinstance(result, dict) or not isinstance(entry, dict):
                 continue  # not finished
-            value = result.get("score")
-            if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+            value = finite_number(result.get("score"))
+            if value is None:
                 continue  # not finished (or not a score)
             col = QUESTIONNAIRE_PREFIX + str(name)
-            scores.setdefault(col, [math.nan] * len(trials))[row] = float(value)
+            scores.setdefault(col, [math.nan] * len(trials))[row] = value
             info.setdefault(col, {"name": str(name), "title": str(entry.get("title", name)),
                                   "citation": str(entry.get("citation", "")), "label": str(result.get("label", name)),
                                   "range": _score_range(result.get("range"))})

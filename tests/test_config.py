@@ -1,5 +1,6 @@
 """The configuration tree: layers, deep merge, and one-line errors for every mistake."""
 
+import math
 import re
 import subprocess
 import sys
@@ -283,3 +284,12 @@ def test_kinematics_options_are_checked_when_configured(observation, must_contai
     fine = {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled", "features": ["presence", "x"],
             "features_range": {"x": [-100, 100]}, "normalize": False}
     validate({"highway": {"observation": fine}})
+
+
+def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader():
+    from dt_highway.jsonio import finite_number, positive_number
+
+    assert finite_number(3) == 3.0 and finite_number(-2.5) == -2.5
+    for odd in (True, False, "3", None, [1], math.nan, math.inf, -math.inf):
+        assert finite_number(odd) is None, odd
+    assert positive_number(15) == 15.0 and positive_number(0) is None and positive_number(-1) is None

@@ -35,7 +35,6 @@ how often it was changed.
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import time
@@ -51,7 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from dt_highway.config import ConfigError, read_user_file
 from dt_highway.hmi.briefing import TextFont
-from dt_highway.jsonio import dump_json
+from dt_highway.jsonio import dump_json, finite_number
 
 QUESTIONNAIRE_DIR = Path(__file__).with_name("questionnaires")
 """Where the shipped questionnaire definitions are (``<name>.toml``)"""
@@ -109,8 +108,7 @@ class Scale(BaseModel):
 
         :raises ValueError: naming the allowed values
         """
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or value != int(value) or int(value) not in range(self.min, self.max + 1, self.step):
+        if finite_number(value) is None or value != int(value) or int(value) not in range(self.min, self.max + 1, self.step):
             raise ValueError(f"{value!r} is not on the scale (allowed: {self.min} to {self.max} in steps of {self.step})")
         return int(value)
 

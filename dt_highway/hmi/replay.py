@@ -42,6 +42,7 @@ from dt_highway.conditions import display_name
 from dt_highway.config import ConfigError
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.drive import MIRROR_FRACTION, Hud, compose_frame, crash_layer, hud_band_height, place_ego_after_crash
+from dt_highway.jsonio import finite_number, positive_number
 
 NEEDED_COLUMNS = ("t_s", "x_m", "y_m", "action_accel_mps2", "action_lane", "keys")
 """The columns of ``steps.csv`` a replay reads"""
@@ -148,10 +149,10 @@ def _frequency(path: Path, key: str, value: Any) -> float:
 
     :raises ReplayError: naming the file and the key
     """
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
-    if not ok:
+    hz = positive_number(value)
+    if hz is None:
         raise ReplayError(f"{path}: {key} must be a positive number of Hz (got {value!r})")
-    return float(value)
+    return hz
 
 
 def read_logged_trial(directory: str | Path) -> LoggedTrial:
@@ -184,10 +185,10 @@ def read_logged_trial(directory: str | Path) -> LoggedTrial:
             except json.JSONDecodeError:
                 continue
             if isinstance(e, dict) and e.get("kind") in ("key_down", "key_up"):
-                t = e.get("t_s", 0.0)
-                if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
-                    raise ReplayError(f"{events}: a {e['kind']} event has no time (t_s: {t!r})")
-                key_events.append((float(t), e["kind"] == "key_down", str(e.get("key", ""))))
+                t = finite_number(e.get("t_s", 0.0))
+                if t is None:
+                    raise ReplayError(f"{events}: a {e['kind']} event has no time (t_s: {e.get('t_s')!r})")
+                key_events.append((t, e["kind"] == "key_down", str(e.get("key", ""))))
     return LoggedTrial(d, meta, actions, positions, _numbers(p, rows, "t_s")[ends],
                        [r["keys"] or "" for r in rows][ends], key_events, per)
 

@@ -43,7 +43,7 @@ import pandas as pd
 
 from dt_highway._version import __version__
 from dt_highway.interrupts import interrupted_by_user, signals_deferred
-from dt_highway.jsonio import json_safe
+from dt_highway.jsonio import finite_number, json_safe, positive_number
 from dt_highway.metrics.overlay_metrics import overlay_metrics
 from dt_highway.metrics.safety import trial_metrics
 
@@ -260,7 +260,7 @@ class Trial:
     def planned_duration_s(self) -> float | None:
         """The trial's configured duration [s] (``None`` when the metadata has none, or not a
         positive finite number)."""
-        return _positive_number(_highway_setting(self.meta, "duration"))
+        return positive_number(_highway_setting(self.meta, "duration"))
 
     def metrics(self) -> dict[str, Any]:
         """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`), and the
@@ -277,12 +277,6 @@ def _highway_setting(meta: dict[str, Any], key: str) -> Any:
     config = meta.get("config")
     highway = config.get("highway") if isinstance(config, dict) else None
     return highway.get(key) if isinstance(highway, dict) else None
-
-
-def _positive_number(value: Any) -> float | None:
-    """``value`` as a float when it is a positive finite number (not ``True``), else ``None``."""
-    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0
-    return float(value) if ok else None
 
 
 def _complete_lines(path: Path) -> str:
@@ -431,9 +425,8 @@ def _bad_event(events: list[dict[str, Any]]) -> str | None:
             return f"events.jsonl event {k + 1} is not a JSON object"
         if e.get("kind") not in ("cut_in", "collision"):
             continue
-        t = e.get("t_s")
-        if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
-            return f"events.jsonl {e['kind']} event {k + 1} has no time (t_s: {t!r})"
+        if finite_number(e.get("t_s")) is None:
+            return f"events.jsonl {e['kind']} event {k + 1} has no time (t_s: {e.get('t_s')!r})"
         vid = e.get("vehicle_id")
         if e["kind"] == "cut_in" and (not isinstance(vid, int) or isinstance(vid, bool)):
             return f"events.jsonl cut_in event {k + 1} names no vehicle (vehicle_id: {vid!r})"
@@ -472,9 +465,9 @@ def check_trial(trial: Trial) -> str | None:
         return f"steps.csv has {n} rows, meta.json counts {written} written"
     if not isinstance(meta.get("condition"), str) or not meta["condition"]:
         return f"meta.json names no condition (condition: {meta.get('condition')!r})"
-    duration, hz = trial.planned_duration_s, _positive_number(meta.get("simulation_frequency_hz"))
+    duration, hz = trial.planned_duration_s, positive_number(meta.get("simulation_frequency_hz"))
     policy = _highway_setting(meta, "policy_frequency")
-    policy_hz = _positive_number(policy)
+    policy_hz = positive_number(policy)
     if duration is None or hz is None or (policy is not None and policy_hz is None):
         return ("meta.json lacks the configured duration or a frequency, as positive numbers (config.highway.duration "
                 f"{_highway_setting(meta, 'duration')!r}, simulation_frequency_hz {meta.get('simulation_frequency_hz')!r}, "
