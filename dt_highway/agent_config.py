@@ -318,6 +318,127 @@ class RewardConfig(BaseModel):
         return self == RewardConfig()
 
 
+# ----------------------------------------------------------------------------- algorithm hyperparameters
+def _whole(low: int) -> Any:
+    def check(value: Any) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"must be a whole number >= {low}")
+        return value
+    return BeforeValidator(check)
+
+
+def _number(low: float, high: float | None = None, low_open: bool = False) -> Any:
+    above = f"> {low:g}" if low_open else f">= {low:g}"
+    allowed = f"a number {above}" + (f" and <= {high:g}" if high is not None else "")
+
+    def check(value: Any) -> float:
+        number = finite_number(value)
+        if number is None or number < low or (low_open and number == low) or (high is not None and number > high):
+            raise ValueError(f"must be {allowed}")
+        return number
+    return BeforeValidator(check)
+
+
+def _train_freq(value: Any) -> Any:
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return value
+    if (isinstance(value, (list, tuple)) and len(value) == 2 and isinstance(value[0], int)
+            and not isinstance(value[0], bool) and value[0] >= 1 and value[1] in ("step", "episode")):
+        return (value[0], value[1])
+    raise ValueError('must be a whole number >= 1 or [N, "step"] / [N, "episode"]')
+
+
+def _gradient_steps(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not (value >= 1 or value == -1):
+        raise ValueError("must be a whole number >= 1, or -1 (as many as the env steps of the rollout)")
+    return value
+
+
+def _learning_rate(value: Any) -> Any:
+    if callable(value):  # a schedule, from Python
+        return value
+    number = finite_number(value)
+    if number is None or number <= 0:
+        raise ValueError("must be a number > 0")
+    return number
+
+
+Probability = Annotated[float, _number(0.0, 1.0)]
+Positive = Annotated[float, _number(0.0, low_open=True)]
+LearningRate = Annotated[Any, BeforeValidator(_learning_rate)]
+
+
+class _Hyperparameters(BaseModel):
+    """The hyperparameters both algorithms take, checked before the env is built: stable-baselines3
+    takes most of them as given (``gamma = 2`` or ``"0.9"`` would train, or fail after the first
+    rollout). Keys not listed here go to the algorithm as they are, which refuses those it does not
+    take."""
+
+    model_config = ConfigDict(extra="allow")
+
+    learning_rate: LearningRate = None
+    gamma: Probability = 0.99
+    max_grad_norm: Positive = 0.5
+    stats_window_size: Annotated[int, _whole(1)] = 100
+
+
+class PPOHyperparameters(_Hyperparameters):
+    """PPO's hyperparameters with their allowed ranges (``[hyperparameters]`` of a training file)."""
+
+    n_steps: Annotated[int, _whole(1)] = 2048
+    batch_size: Annotated[int, _whole(2)] = 64
+    n_epochs: Annotated[int, _whole(1)] = 10
+    gae_lambda: Probability = 0.95
+    clip_range: Positive = 0.2
+    clip_range_vf: Positive | None = None
+    normalize_advantage: Flag = True
+    ent_coef: Annotated[float, _number(0.0)] = 0.0
+    vf_coef: Annotated[float, _number(0.0)] = 0.5
+    target_kl: Positive | None = None
+
+
+class DQNHyperparameters(_Hyperparameters):
+    """DQN's hyperparameters with their allowed ranges (``[hyperparameters]`` of a training file)."""
+
+    buffer_size: Annotated[int, _whole(1)] = 1_000_000
+    batch_size: Annotated[int, _whole(1)] = 32
+    n_steps: Annotated[int, _whole(1)] = 1
+    learning_starts: Annotated[int, _whole(0)] = 100
+    tau: Annotated[float, _number(0.0, 1.0, low_open=True)] = 1.0
+    train_freq: Annotated[Any, BeforeValidator(_train_freq)] = 4
+    gradient_steps: Annotated[int, BeforeValidator(_gradient_steps)] = 1
+    target_update_interval: Annotated[int, _whole(1)] = 10_000
+    exploration_fraction: Probability = 0.1
+    exploration_initial_eps: Probability = 1.0
+    exploration_final_eps: Probability = 0.05
+    optimize_memory_usage: Flag = False
+
+
+HYPERPARAMETERS: dict[str, type[_Hyperparameters]] = {"PPO": PPOHyperparameters, "DQN": DQNHyperparameters}
+"""The checked hyperparameters of each algorithm"""
+SET_BY_THE_FILE = {"policy": "the training file's observation sets it", "env": "the training file's scenario sets it",
+                   "seed": "use the training file's seed", "device": "training runs on the CPU",
+                   "verbose": "dt-highway shows the progress", "policy_kwargs": "use the [policy_kwargs] table"}
+"""Algorithm arguments a training file sets itself, and why they are not hyperparameters"""
+
+
+def check_hyperparameters(algorithm: str, values: dict[str, Any]) -> str | None:
+    """What is wrong with a training file's ``[hyperparameters]`` (``None``: nothing).
+
+    :param algorithm: ``PPO`` or ``DQN``
+    :param values: the table
+    :return: one line naming each bad key and what is allowed
+    """
+    mistakes = [f"hyperparameters.{key} cannot be set here: {SET_BY_THE_FILE[key]}"
+                for key in values if key in SET_BY_THE_FILE]
+    try:
+        HYPERPARAMETERS[algorithm].model_validate({k: v for k, v in values.items() if k not in SET_BY_THE_FILE})
+    except ValidationError as exc:
+        mistakes += [f"hyperparameters.{'.'.join(str(p) for p in e['loc'])} = {e.get('input')!r}: "
+                     f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()]
+    return "; ".join(mistakes) or None
+
+
 # ----------------------------------------------------------------------------- training files
 OBSERVATIONS = ("kinematics", "adas", "adas-threat", "vision")
 ALGORITHMS = ("PPO", "DQN")
@@ -408,6 +529,9 @@ class TrainConfig(BaseModel):
             raise ValueError(f"accels_mps2 must be a non-empty list within [{ACCEL_MIN_MPS2}, {ACCEL_MAX_MPS2}] m/s^2")
         if not self.speeds_mps or not all(0 < v <= 45 for v in self.speeds_mps):
             raise ValueError("speeds_mps must be a non-empty list of speeds in (0, 45] m/s")
+        mistakes = check_hyperparameters(self.algorithm, self.hyperparameters)
+        if mistakes:
+            raise ValueError(mistakes)
         return self
 
     def env_config(self, condition: str | None = None) -> DTConfig:

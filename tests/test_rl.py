@@ -147,6 +147,48 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
     assert "moved.d exists: pass --force" in err and len(err.strip().splitlines()) == 1 and kept.read_text() == "mine"
 
 
+
+@pytest.mark.parametrize("algorithm, hyper, words", [
+    ("PPO", {"gamma": 2}, "hyperparameters.gamma = 2: must be a number >= 0 and <= 1"),
+    ("PPO", {"gamma": "0.9"}, "hyperparameters.gamma = '0.9'"),
+    ("PPO", {"gamma": True}, "hyperparameters.gamma = True"),
+    ("PPO", {"learning_rate": 0}, "learning_rate = 0: must be a number > 0"),
+    ("PPO", {"n_epochs": 0}, "n_epochs = 0: must be a whole number >= 1"),
+    ("PPO", {"n_steps": 64.5}, "n_steps = 64.5"),
+    ("PPO", {"clip_range": -0.2, "ent_coef": -1}, "clip_range = -0.2: must be a number > 0; hyperparameters.ent_coef"),
+    ("PPO", {"gae_lambda": float("nan")}, "gae_lambda"),
+    ("PPO", {"seed": 3}, "hyperparameters.seed cannot be set here: use the training file's seed"),
+    ("PPO", {"policy_kwargs": {"net_arch": [8]}}, "use the [policy_kwargs] table"),
+    ("DQN", {"tau": 0}, "tau = 0: must be a number > 0 and <= 1"),
+    ("DQN", {"exploration_final_eps": 1.5}, "exploration_final_eps"),
+    ("DQN", {"train_freq": [4, "epoch"]}, 'train_freq = [4, \'epoch\']: must be a whole number >= 1 or [N, "step"]'),
+    ("DQN", {"gradient_steps": 0}, "or -1"),
+    ("DQN", {"buffer_size": 0}, "buffer_size = 0"),
+])
+def test_hyperparameters_the_algorithm_would_take_silently_are_refused(algorithm, hyper, words):
+    # stable-baselines3 trains with gamma = 2, or fails after the first rollout with gamma = "0.9"
+    with pytest.raises(ConfigError) as err:
+        parse_train_config({"kind": "rl", "algorithm": algorithm, "hyperparameters": hyper}, "agents/x.toml")
+    assert str(err.value).startswith("agents/x.toml: hyperparameters.") and words in str(err.value), err.value
+    assert "\n" not in str(err.value)
+
+
+def test_hyperparameters_in_range_reach_the_algorithm():
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from dt_highway.rl.train import build_model
+
+    env = make_vec_env("CartPole-v1", n_envs=1)
+    dqn = build_model(parse_train_config({"kind": "rl", "algorithm": "DQN", "hyperparameters": {
+        "train_freq": [1, "episode"], "gradient_steps": -1, "tau": 0.005, "exploration_fraction": 1.0}}), env)
+    assert (dqn.train_freq.frequency, dqn.train_freq.unit.value) == (1, "episode")  # a TOML list, a tuple to SB3
+    assert (dqn.gradient_steps, dqn.tau, dqn.exploration_fraction) == (-1, 0.005, 1.0)
+    ppo = build_model(parse_train_config({"kind": "rl", "hyperparameters": {
+        "gamma": 1, "n_steps": 16, "batch_size": 16, "learning_rate": 1e-3, "target_kl": 0.02}}), env)
+    assert (ppo.gamma, ppo.n_steps, ppo.batch_size, ppo.target_kl) == (1, 16, 16, 0.02)
+    for name in ("ppo-baseline", "ppo-adas", "ppo-safe-baseline", "ppo-safe-adas"):  # the shipped files still load
+        assert load_train_config(ROOT / "agents" / f"{name}.toml").hyperparameters["gamma"] == 0.97
+
 def test_discrete_driver_menu_and_the_overlay_column():
     # a minute of pre-roll: the twin has tagged drivers by t = 0, so markers show up
     cfg = load_config(str(ROOT / "envs/highway-trial.toml"), ["highway.duration=8", "highway.vehicles_count=16",

@@ -134,6 +134,8 @@ def build_model(cfg: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     """
     algo = getattr(sb3, cfg.algorithm)
     kwargs = dict(cfg.hyperparameters)
+    if isinstance(kwargs.get("train_freq"), list):  # TOML has no tuple: [4, "step"]
+        kwargs["train_freq"] = tuple(kwargs["train_freq"])
     if cfg.algorithm == "DQN" and cfg.observation == "vision":
         # SB3's default replay buffer (a million transitions) would hold ~74 GB of 128x72 RGB-D pairs
         kwargs.setdefault("buffer_size", VISION_DQN_BUFFER)
