@@ -104,8 +104,13 @@ HIGHWAY_ENV_OBSERVATION_TYPES = (
 """Observation types of highway-env 1.12's ``observation_factory``"""
 HIGHWAY_ENV_ACTION_TYPES = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction", "MultiAgentAction")
 """Action types of highway-env 1.12's ``action_factory``"""
-OBSERVATION_TYPES = (*HIGHWAY_ENV_OBSERVATION_TYPES, "Camera", "OverlayKinematics")
-"""Every ``highway.observation.type``: highway-env's and ours (:mod:`dt_highway.env.observations`)"""
+NOT_ON_THIS_HIGHWAY = {"KinematicsGoal": "it needs a goal, as on highway-env's parking env",
+                       "ExitObservation": "it needs an exit lane, as on highway-env's exit env"}
+"""highway-env observation types that cannot observe this env's straight highway, and why"""
+OBSERVATION_TYPES = (*(t for t in HIGHWAY_ENV_OBSERVATION_TYPES if t not in NOT_ON_THIS_HIGHWAY),
+                     "Camera", "OverlayKinematics")
+"""Every ``highway.observation.type``: highway-env's (but :data:`NOT_ON_THIS_HIGHWAY`) and ours
+(:mod:`dt_highway.env.observations`)"""
 ACTION_TYPES = (*HIGHWAY_ENV_ACTION_TYPES, "Driver", "DiscreteDriver")
 """Every ``highway.action.type``: highway-env's and ours (:mod:`dt_highway.env.actions`)"""
 
@@ -192,6 +197,12 @@ class HighwayConfig(_Section):
     @classmethod
     def _known_type(cls, table: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         allowed = OBSERVATION_TYPES if info.field_name == "observation" else ACTION_TYPES
+        if info.field_name == "observation" and table.get("type") in NOT_ON_THIS_HIGHWAY:
+            raise PydanticCustomError(
+                "unknown_type", "{why} (allowed: {allowed})",
+                {"key": "type", "got": table["type"], "why": NOT_ON_THIS_HIGHWAY[table["type"]],
+                 "allowed": ", ".join(allowed)},
+            )
         if "type" in table and table["type"] not in allowed:
             raise PydanticCustomError(
                 "unknown_type", "not a highway-env or dt-highway {what} type (allowed: {allowed})",

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import dt_highway  # noqa: F401
-from dt_highway.config import load_config
+from dt_highway.config import ConfigError, load_config
 from dt_highway.env import DTHighwayEnv
 from dt_highway.world.traffic import AGGRESSIVE, NORMAL
 
@@ -304,6 +304,40 @@ def test_bad_render_mode(bad):
     with pytest.raises(ValueError, match="render_mode"):
         DTHighwayEnv(render_mode=bad)
 
+
+
+@pytest.mark.parametrize("table, words", [
+    ({"type": "OccupancyGrid", "grid_step": [0, 0]},
+     "highway-env cannot make type 'OccupancyGrid' with {'grid_step': [0, 0]} (ValueError"),
+    ({"type": "OccupancyGrid", "bogus": 1},
+     "'bogus' not an option of highway-env's OccupancyGridObservation (its options: absolute"),
+    ({"type": "TimeToCollision", "horizon": "x"}, "type 'TimeToCollision' with {'horizon': 'x'}"),
+    ({"type": "LidarObservation", "cells": 0}, "(ZeroDivisionError"),
+    ({"type": "GrayscaleObservation"}, "missing 3 required positional arguments"),
+    ({"type": "KinematicsGoal"}, "it needs a goal, as on highway-env's parking env"),
+    ({"type": "ExitObservation"}, "it needs an exit lane"),
+])
+def test_highway_env_observation_options_it_cannot_take_are_one_line(table, words):
+    # highway-env takes its types' options unchecked: a traceback from inside it, or dropped
+    with pytest.raises(ConfigError) as err:
+        gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": table}})
+    assert words in str(err.value) and "\n" not in str(err.value), err.value
+
+
+def test_highway_env_types_with_good_options_are_made():
+    for table, shape in (({"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2,
+                           "weights": [0.3, 0.6, 0.1]}, (2, 64, 32)),  # a TOML list where highway-env wants a tuple
+                         ({"type": "OccupancyGrid", "grid_step": [11, 11]}, (4, 5, 5)),
+                         ({"type": "LidarObservation", "cells": 8}, (8, 2))):
+        env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": table}})
+        assert env.observation_space.shape == shape
+        env.close()
+    with pytest.raises(ConfigError, match="'bogus' not an option of highway-env's ContinuousAction"):
+        gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": {"type": "ContinuousAction", "bogus": 2}}})
+    discrete = {"type": "DiscreteAction", "actions_per_axis": 3}
+    env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": discrete}})
+    assert env.action_space.n == 9
+    env.close()
 
 # ----------------------------------------------------------------------------- env.unwrapped.config, highway-env's way
 def test_editing_env_config_before_reset_is_validated_and_applied(small_config):

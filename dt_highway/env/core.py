@@ -19,7 +19,9 @@ each driver's latent ``aggressiveness``) for evaluation only.
 
 from __future__ import annotations
 
+import inspect
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -88,6 +90,13 @@ def _uplink_state(v: Vehicle) -> VehicleState:
     x_m, y_m = v.position.tolist()
     vx_mps, vy_mps = velocity(v)
     return VehicleState(vehicle_id(v), x_m, y_m, vx_mps, vy_mps, float(v.speed), float(v.heading))
+
+
+def _init_options(cls: type) -> set[str]:
+    """The named arguments of ``cls`` and its bases' ``__init__`` (the options a highway-env type reads)."""
+    return {name for base in cls.__mro__ if "__init__" in vars(base) and base is not object
+            for name, param in inspect.signature(base.__init__).parameters.items()
+            if name not in ("self", "env") and param.kind not in (param.VAR_POSITIONAL, param.VAR_KEYWORD)}
 
 
 class DTHighwayEnv(HighwayEnv):
@@ -221,7 +230,7 @@ class DTHighwayEnv(HighwayEnv):
         elif obs_cfg.get("type") == "Kinematics" and self.dt_config.traffic.fast_road:
             self.observation_type = self._kinematics(FastKinematicObservation, obs_cfg)
         else:
-            self.observation_type = observation_factory(self, self.config["observation"])
+            self.observation_type = self._from_highway_env("observation", observation_factory)
         act_cfg = dict(self.config["action"])
         if act_cfg.get("type") in ("Driver", "DiscreteDriver"):
             kind = act_cfg.pop("type")
@@ -230,9 +239,34 @@ class DTHighwayEnv(HighwayEnv):
             except (TypeError, ValueError) as err:
                 raise ConfigError(f"highway.action: {err}") from None
         else:
-            self.action_type = action_factory(self, self.config["action"])
+            self.action_type = self._from_highway_env("action", action_factory)
         self.observation_space = self.observation_type.space()
         self.action_space = self.action_type.space()
+
+    def _from_highway_env(self, key: str, factory: Callable[[Any, dict], Any]) -> Any:
+        """A highway-env observation or action type from the ``highway.<key>`` table, with its space
+        made once to try it: highway-env takes the options unchecked (``grid_step = [0, 0]``).
+
+        :raises ConfigError: naming the type, its options and what highway-env said
+        """
+        table = dict(self.config[key])
+        if isinstance(table.get("observation_shape"), list):  # TOML has no tuple (GrayscaleObservation)
+            table["observation_shape"] = tuple(table["observation_shape"])
+        try:
+            with np.errstate(all="ignore"):  # a bad option's own warnings would come before the error
+                made = factory(self, table)
+                made.space()
+        except (TypeError, ValueError, IndexError, KeyError, ZeroDivisionError, AttributeError) as err:
+            options = {k: v for k, v in table.items() if k != "type"}
+            raise ConfigError(f"highway.{key}: highway-env cannot make type '{table.get('type')}' with "
+                              f"{options or 'no options'} ({type(err).__name__}: {' '.join(str(err).split())}); "
+                              "its options are in highway-env's documentation") from None
+        known = _init_options(type(made))
+        unknown = sorted(set(table) - known - {"type"})
+        if unknown:  # highway-env's types take **kwargs and drop what they do not know
+            raise ConfigError(f"highway.{key}: {', '.join(map(repr, unknown))} not an option of highway-env's "
+                              f"{type(made).__name__} (its options: {', '.join(sorted(known))})")
+        return made
 
     def _kinematics(self, cls: type, obs_cfg: dict[str, Any]) -> FastKinematicObservation:
         """A Kinematics observation of ours from the ``highway.observation`` table.
