@@ -95,7 +95,7 @@ def _uplink_state(v: Vehicle) -> VehicleState:
 def _init_options(cls: type) -> set[str]:
     """The named arguments of ``cls`` and its bases' ``__init__`` (the options a highway-env type reads)."""
     return {name for base in cls.__mro__ if "__init__" in vars(base) and base is not object
-            for name, param in inspect.signature(base.__init__).parameters.items()
+            for name, param in inspect.signature(vars(base)["__init__"]).parameters.items()
             if name not in ("self", "env") and param.kind not in (param.VAR_POSITIONAL, param.VAR_KEYWORD)}
 
 
