@@ -18,6 +18,8 @@ Training files (``kind = "rl"``): :class:`TrainConfig`.
 
 from __future__ import annotations
 
+import math
+import numbers
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -319,102 +321,128 @@ class RewardConfig(BaseModel):
 
 
 # ----------------------------------------------------------------------------- algorithm hyperparameters
+def _real(value: Any) -> float | None:
+    """A number from TOML or Python (numpy scalars too) as a float, ``None`` for anything else (``true``, text)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return None
+    return float(value)
+
+
+def _whole_number(value: Any) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        return None
+    return int(value)
+
+
 def _whole(low: int) -> Any:
     def check(value: Any) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        number = _whole_number(value)
+        if number is None or number < low:
             raise ValueError(f"must be a whole number >= {low}")
-        return value
+        return number
     return BeforeValidator(check)
 
 
-def _number(low: float, high: float | None = None, low_open: bool = False) -> Any:
+def _number(low: float, high: float | None = None, low_open: bool = False, schedule: bool = False,
+            infinite: bool = False) -> Any:
+    """A number in [low, high] ((low, high] with ``low_open``); a callable too with ``schedule`` (from
+    Python: stable-baselines3 takes a schedule of the training progress), +inf too with ``infinite``."""
     above = f"> {low:g}" if low_open else f">= {low:g}"
-    allowed = f"a number {above}" + (f" and <= {high:g}" if high is not None else "")
+    allowed = f"a number {above}" + (f" and <= {high:g}" if high is not None else "") + (
+        " (or a schedule, from Python)" if schedule else "")
 
-    def check(value: Any) -> float:
-        number = finite_number(value)
-        if number is None or number < low or (low_open and number == low) or (high is not None and number > high):
+    def check(value: Any) -> Any:
+        if schedule and callable(value):
+            return value
+        number = _real(value)
+        if (number is None or math.isnan(number) or (math.isinf(number) and not (infinite and number > 0))
+                or number < low or (low_open and number == low) or (high is not None and number > high)):
             raise ValueError(f"must be {allowed}")
         return number
     return BeforeValidator(check)
 
 
 def _train_freq(value: Any) -> Any:
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
-        return value
-    if (isinstance(value, (list, tuple)) and len(value) == 2 and isinstance(value[0], int)
-            and not isinstance(value[0], bool) and value[0] >= 1 and value[1] in ("step", "episode")):
-        return (value[0], value[1])
+    if (number := _whole_number(value)) is not None and number >= 1:
+        return number
+    if isinstance(value, (list, tuple)) and len(value) == 2:  # [4, "step"], SB3's TrainFreq too
+        count, unit = _whole_number(value[0]), getattr(value[1], "value", value[1])
+        if count is not None and count >= 1 and unit in ("step", "episode"):
+            return (count, unit)
     raise ValueError('must be a whole number >= 1 or [N, "step"] / [N, "episode"]')
 
 
 def _gradient_steps(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not (value >= 1 or value == -1):
-        raise ValueError("must be a whole number >= 1, or -1 (as many as the env steps of the rollout)")
-    return value
-
-
-def _learning_rate(value: Any) -> Any:
-    if callable(value):  # a schedule, from Python
-        return value
-    number = finite_number(value)
-    if number is None or number <= 0:
-        raise ValueError("must be a number > 0")
+    number = _whole_number(value)
+    if number is None:
+        raise ValueError("must be a whole number (-1: as many as the env steps of the rollout; 0: no training)")
     return number
 
 
 Probability = Annotated[float, _number(0.0, 1.0)]
 Positive = Annotated[float, _number(0.0, low_open=True)]
-LearningRate = Annotated[Any, BeforeValidator(_learning_rate)]
+NonNegativeNumber = Annotated[float, _number(0.0)]
+Schedule = Annotated[Any, _number(0.0, low_open=True, schedule=True)]
+"""A number > 0, or (from Python) a schedule of the training progress"""
+GradientNorm = Annotated[float, _number(0.0, low_open=True, infinite=True)]
+"""A number > 0; ``inf`` clips nothing"""
 
 
-class _Hyperparameters(BaseModel):
-    """The hyperparameters both algorithms take, checked before the env is built: stable-baselines3
-    takes most of them as given (``gamma = 2`` or ``"0.9"`` would train, or fail after the first
-    rollout). Keys not listed here go to the algorithm as they are, which refuses those it does not
-    take."""
+class PPOHyperparameters(BaseModel):
+    """PPO's hyperparameters with their allowed ranges and stable-baselines3's defaults (``[hyperparameters]``
+    of a training file), checked before any env is built: stable-baselines3 takes most of them as given
+    (``gamma = 2`` or ``clip_range = -0.2`` would train, ``gamma = "0.9"`` fail after the first rollout).
+    Keys not listed here go to the algorithm as they are, which refuses those it does not take."""
 
     model_config = ConfigDict(extra="allow")
 
-    learning_rate: LearningRate = None
+    learning_rate: Schedule = 3e-4
+    n_steps: Annotated[int, _whole(1)] = 2048
+    batch_size: Annotated[int, _whole(1)] = 64
+    n_epochs: Annotated[int, _whole(1)] = 10
     gamma: Probability = 0.99
-    max_grad_norm: Positive = 0.5
+    gae_lambda: Probability = 0.95
+    clip_range: Schedule = 0.2
+    clip_range_vf: Schedule | None = None
+    normalize_advantage: Flag = True
+    ent_coef: NonNegativeNumber = 0.0
+    vf_coef: NonNegativeNumber = 0.5
+    max_grad_norm: GradientNorm = 0.5
+    target_kl: Positive | None = None
     stats_window_size: Annotated[int, _whole(1)] = 100
 
-
-class PPOHyperparameters(_Hyperparameters):
-    """PPO's hyperparameters with their allowed ranges (``[hyperparameters]`` of a training file)."""
-
-    n_steps: Annotated[int, _whole(1)] = 2048
-    batch_size: Annotated[int, _whole(2)] = 64
-    n_epochs: Annotated[int, _whole(1)] = 10
-    gae_lambda: Probability = 0.95
-    clip_range: Positive = 0.2
-    clip_range_vf: Positive | None = None
-    normalize_advantage: Flag = True
-    ent_coef: Annotated[float, _number(0.0)] = 0.0
-    vf_coef: Annotated[float, _number(0.0)] = 0.5
-    target_kl: Positive | None = None
+    @model_validator(mode="after")
+    def _batch(self) -> PPOHyperparameters:
+        if self.batch_size < 2 and self.normalize_advantage:  # one sample has no spread to normalise by
+            raise ValueError("hyperparameters.batch_size = 1 needs normalize_advantage = false")
+        return self
 
 
-class DQNHyperparameters(_Hyperparameters):
-    """DQN's hyperparameters with their allowed ranges (``[hyperparameters]`` of a training file)."""
+class DQNHyperparameters(BaseModel):
+    """DQN's hyperparameters with their allowed ranges and stable-baselines3's defaults (see
+    :class:`PPOHyperparameters`)."""
 
+    model_config = ConfigDict(extra="allow")
+
+    learning_rate: Schedule = 1e-4
     buffer_size: Annotated[int, _whole(1)] = 1_000_000
-    batch_size: Annotated[int, _whole(1)] = 32
-    n_steps: Annotated[int, _whole(1)] = 1
     learning_starts: Annotated[int, _whole(0)] = 100
+    batch_size: Annotated[int, _whole(1)] = 32
     tau: Annotated[float, _number(0.0, 1.0, low_open=True)] = 1.0
+    gamma: Probability = 0.99
     train_freq: Annotated[Any, BeforeValidator(_train_freq)] = 4
     gradient_steps: Annotated[int, BeforeValidator(_gradient_steps)] = 1
+    optimize_memory_usage: Flag = False
+    n_steps: Annotated[int, _whole(1)] = 1
     target_update_interval: Annotated[int, _whole(1)] = 10_000
     exploration_fraction: Probability = 0.1
     exploration_initial_eps: Probability = 1.0
     exploration_final_eps: Probability = 0.05
-    optimize_memory_usage: Flag = False
+    max_grad_norm: GradientNorm = 10
+    stats_window_size: Annotated[int, _whole(1)] = 100
 
 
-HYPERPARAMETERS: dict[str, type[_Hyperparameters]] = {"PPO": PPOHyperparameters, "DQN": DQNHyperparameters}
+HYPERPARAMETERS: dict[str, type[BaseModel]] = {"PPO": PPOHyperparameters, "DQN": DQNHyperparameters}
 """The checked hyperparameters of each algorithm"""
 SET_BY_THE_FILE = {"policy": "the training file's observation sets it", "env": "the training file's scenario sets it",
                    "seed": "use the training file's seed", "device": "training runs on the CPU",
@@ -435,7 +463,8 @@ def check_hyperparameters(algorithm: str, values: dict[str, Any]) -> str | None:
         HYPERPARAMETERS[algorithm].model_validate({k: v for k, v in values.items() if k not in SET_BY_THE_FILE})
     except ValidationError as exc:
         mistakes += [f"hyperparameters.{'.'.join(str(p) for p in e['loc'])} = {e.get('input')!r}: "
-                     f"{e['msg'].removeprefix('Value error, ')}" for e in exc.errors()]
+                     f"{e['msg'].removeprefix('Value error, ')}" if e["loc"] else e["msg"].removeprefix("Value error, ")
+                     for e in exc.errors()]
     return "; ".join(mistakes) or None
 
 
@@ -532,6 +561,11 @@ class TrainConfig(BaseModel):
         mistakes = check_hyperparameters(self.algorithm, self.hyperparameters)
         if mistakes:
             raise ValueError(mistakes)
+        freq = self.hyperparameters.get("train_freq")
+        if self.algorithm == "DQN" and isinstance(freq, (list, tuple)) and self.n_envs > 1 and (
+                getattr(freq[1], "value", freq[1]) == "episode"):
+            raise ValueError(f"hyperparameters.train_freq = {list(freq)!r} counts episodes, which stable-baselines3 "
+                             f"does in one env only: set n_envs = 1 (got {self.n_envs})")
         return self
 
     def env_config(self, condition: str | None = None) -> DTConfig:

@@ -309,8 +309,15 @@ def test_bad_render_mode(bad):
 @pytest.mark.parametrize("table, words", [
     ({"type": "OccupancyGrid", "grid_step": [0, 0]},
      "highway-env cannot make type 'OccupancyGrid' with {'grid_step': [0, 0]} (ValueError"),
-    ({"type": "OccupancyGrid", "bogus": 1},
-     "'bogus' not an option of highway-env's OccupancyGridObservation (its options: absolute"),
+    ({"type": "OccupancyGrid", "vehicles_count": 15},  # in highway-env's own examples; OccupancyGrid ignores it
+     "highway-env's OccupancyGridObservation does not read 'vehicles_count' (its options: absolute"),
+    ({"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2, "weights": [1.0]},
+     "cannot observe with type 'GrayscaleObservation'"),  # made, fails at the first observation
+    ({"type": "AttributesObservation", "attributes": ["bogus"]}, "(AttributeError: 'DTHighwayEnv' object has no"),
+    ({"type": "MultiAgentObservation", "observation_config": {"type": "Kinematics", "bogus": 1}},
+     "highway.observation.observation_config: highway-env's KinematicObservation does not read 'bogus'"),
+    ({"type": "TupleObservation", "observation_configs": [{"type": "Kinematics"}, {"type": "ExitObservation"}]},
+     "highway.observation.observation_configs[1].type = 'ExitObservation': it needs an exit lane"),
     ({"type": "TimeToCollision", "horizon": "x"}, "type 'TimeToCollision' with {'horizon': 'x'}"),
     ({"type": "LidarObservation", "cells": 0}, "(ZeroDivisionError"),
     ({"type": "GrayscaleObservation"}, "missing 3 required positional arguments"),
@@ -332,8 +339,18 @@ def test_highway_env_types_with_good_options_are_made():
         env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": table}})
         assert env.observation_space.shape == shape
         env.close()
-    with pytest.raises(ConfigError, match="'bogus' not an option of highway-env's ContinuousAction"):
-        gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": {"type": "ContinuousAction", "bogus": 2}}})
+    for action, words in (({"type": "ContinuousAction", "bogus": 2}, "highway-env's ContinuousAction does not read 'bogus'"),
+                          ({"type": "DiscreteAction", "speed_range": [0, 10]},  # DiscreteAction does not hand it on
+                           "highway-env's DiscreteAction does not read 'speed_range'")):
+        with pytest.raises(ConfigError, match=words):
+            gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": action}})
+    grayscale = {"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2, "weights": [0.3, 0.6, 0.1]}
+    env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": {
+        "type": "TupleObservation", "observation_configs": [{"type": "Kinematics"}, grayscale]}, "duration": 1},
+        "twin": {"preroll_s": 1}})
+    obs, _ = env.reset(seed=0)  # nested lists made tuples too
+    assert obs[1].shape == (2, 64, 32)
+    env.close()
     discrete = {"type": "DiscreteAction", "actions_per_axis": 3}
     env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": discrete}})
     assert env.action_space.n == 9

@@ -155,14 +155,18 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
     ("PPO", {"learning_rate": 0}, "learning_rate = 0: must be a number > 0"),
     ("PPO", {"n_epochs": 0}, "n_epochs = 0: must be a whole number >= 1"),
     ("PPO", {"n_steps": 64.5}, "n_steps = 64.5"),
-    ("PPO", {"clip_range": -0.2, "ent_coef": -1}, "clip_range = -0.2: must be a number > 0; hyperparameters.ent_coef"),
+    ("PPO", {"clip_range": -0.2, "ent_coef": -1},
+     "clip_range = -0.2: must be a number > 0 (or a schedule, from Python); hyperparameters.ent_coef"),
     ("PPO", {"gae_lambda": float("nan")}, "gae_lambda"),
     ("PPO", {"seed": 3}, "hyperparameters.seed cannot be set here: use the training file's seed"),
     ("PPO", {"policy_kwargs": {"net_arch": [8]}}, "use the [policy_kwargs] table"),
     ("DQN", {"tau": 0}, "tau = 0: must be a number > 0 and <= 1"),
     ("DQN", {"exploration_final_eps": 1.5}, "exploration_final_eps"),
     ("DQN", {"train_freq": [4, "epoch"]}, 'train_freq = [4, \'epoch\']: must be a whole number >= 1 or [N, "step"]'),
-    ("DQN", {"gradient_steps": 0}, "or -1"),
+    ("DQN", {"gradient_steps": 1.5}, "-1: as many as the env steps of the rollout; 0: no training"),
+    ("PPO", {"batch_size": 1}, "batch_size = 1 needs normalize_advantage = false"),
+    ("PPO", {"max_grad_norm": float("-inf")}, "max_grad_norm = -inf: must be a number > 0"),
+    ("DQN", {"train_freq": [1, "episode"]}, "counts episodes, which stable-baselines3 does in one env only: set n_envs = 1"),
     ("DQN", {"buffer_size": 0}, "buffer_size = 0"),
 ])
 def test_hyperparameters_the_algorithm_would_take_silently_are_refused(algorithm, hyper, words):
@@ -173,13 +177,39 @@ def test_hyperparameters_the_algorithm_would_take_silently_are_refused(algorithm
     assert "\n" not in str(err.value)
 
 
+def test_the_hyperparameter_checks_take_what_stable_baselines3_takes(tmp_path):
+    import inspect
+
+    import stable_baselines3 as sb3
+    from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
+    from stable_baselines3.common.utils import LinearSchedule
+
+    from dt_highway.agent_config import HYPERPARAMETERS, check_hyperparameters
+
+    for algorithm, model in HYPERPARAMETERS.items():  # the defaults the API pages show are SB3's own
+        signature = inspect.signature(getattr(sb3, algorithm)).parameters
+        assert {name: field.default for name, field in model.model_fields.items()} == {
+            name: signature[name].default for name in model.model_fields}
+    for algorithm, hyper in (("PPO", {"clip_range": lambda progress: 0.2 * progress, "learning_rate": LinearSchedule(
+                                 1e-3, 1e-4, 1.0), "clip_range_vf": LinearSchedule(0.2, 0.1, 1.0)}),
+                             ("PPO", {"n_steps": np.int64(128), "gamma": np.float32(0.99), "max_grad_norm": float("inf")}),
+                             ("PPO", {"batch_size": 1, "normalize_advantage": False}),
+                             ("DQN", {"train_freq": (np.int64(4), "step"), "gradient_steps": 0}),
+                             ("DQN", {"train_freq": TrainFreq(2, TrainFrequencyUnit.EPISODE), "gradient_steps": -3})):
+        assert check_hyperparameters(algorithm, hyper) is None, hyper
+    one = parse_train_config({"kind": "rl", "algorithm": "DQN", "n_envs": 1, "hyperparameters": {
+        "train_freq": [1, "episode"]}})
+    with pytest.raises(ConfigError, match=r"with n_envs = 2: hyperparameters.train_freq = \[1, 'episode'\] counts"):
+        train(one, tmp_path / "unused.zip", n_envs=2)  # --n-envs 2 is checked as the file's own n_envs
+
+
 def test_hyperparameters_in_range_reach_the_algorithm():
     from stable_baselines3.common.env_util import make_vec_env
 
     from dt_highway.rl.train import build_model
 
     env = make_vec_env("CartPole-v1", n_envs=1)
-    dqn = build_model(parse_train_config({"kind": "rl", "algorithm": "DQN", "hyperparameters": {
+    dqn = build_model(parse_train_config({"kind": "rl", "algorithm": "DQN", "n_envs": 1, "hyperparameters": {
         "train_freq": [1, "episode"], "gradient_steps": -1, "tau": 0.005, "exploration_fraction": 1.0}}), env)
     assert (dqn.train_freq.frequency, dqn.train_freq.unit.value) == (1, "episode")  # a TOML list, a tuple to SB3
     assert (dqn.gradient_steps, dqn.tau, dqn.exploration_fraction) == (-1, 0.005, 1.0)

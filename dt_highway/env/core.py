@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import inspect
 import math
+import traceback
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,7 +43,15 @@ from dt_highway.camera.render import (
 )
 from dt_highway.camera.scene import RoadScene, VehicleSet
 from dt_highway.camera.truth import CameraTruth
-from dt_highway.config import CameraConfig, ConfigError, DTConfig, HighwayConfig, merge, set_highway_keys
+from dt_highway.config import (
+    NOT_ON_THIS_HIGHWAY,
+    CameraConfig,
+    ConfigError,
+    DTConfig,
+    HighwayConfig,
+    merge,
+    set_highway_keys,
+)
 from dt_highway.env.actions import DiscreteDriverAction, DriverAction, check_action
 from dt_highway.env.adas import AdasPipeline
 from dt_highway.env.flat_config import FlatConfig
@@ -93,10 +103,68 @@ def _uplink_state(v: Vehicle) -> VehicleState:
 
 
 def _init_options(cls: type) -> set[str]:
-    """The named arguments of ``cls`` and its bases' ``__init__`` (the options a highway-env type reads)."""
-    return {name for base in cls.__mro__ if "__init__" in vars(base) and base is not object
-            for name, param in inspect.signature(vars(base)["__init__"]).parameters.items()
+    """The named arguments of the ``__init__`` of ``cls`` (the options a highway-env type reads: none
+    of highway-env 1.12's types hands a named option on to its base)."""
+    init = next(vars(base)["__init__"] for base in cls.__mro__ if "__init__" in vars(base))
+    return {name for name, param in inspect.signature(init).parameters.items()
             if name not in ("self", "env") and param.kind not in (param.VAR_POSITIONAL, param.VAR_KEYWORD)}
+
+
+_NESTED_TABLES = {"observation_config": False, "observation_configs": True, "action_config": False}
+"""Options of highway-env's multi-agent and tuple types that hold tables of other types (True: a list of them)"""
+_HIGHWAY_ENV_ERRORS = (TypeError, ValueError, IndexError, KeyError, ZeroDivisionError, AttributeError)
+"""What highway-env raises on options it cannot use"""
+
+
+HIGHWAY_ENV_OBSERVATIONS = str(Path(inspect.getfile(observation_factory)))
+"""highway-env's module of observation types"""
+
+
+def _raised_in(err: BaseException, filename: str) -> bool:
+    """Whether ``err`` passed through code of the file ``filename`` on its way up."""
+    return any(frame.filename == filename for frame in traceback.extract_tb(err.__traceback__))
+
+
+def _with_tuples(table: dict[str, Any]) -> dict[str, Any]:
+    """``table`` with a TOML list where highway-env wants a tuple (``observation_shape``) made one, nested tables too."""
+    out = {k: _with_tuples(v) if isinstance(v, dict) else v for k, v in table.items()}
+    if isinstance(out.get("observation_shape"), list):
+        out["observation_shape"] = tuple(out["observation_shape"])
+    if isinstance(out.get("observation_configs"), list):
+        out["observation_configs"] = [_with_tuples(t) if isinstance(t, dict) else t for t in out["observation_configs"]]
+    return out
+
+
+def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any], table: dict[str, Any]) -> Any:
+    """A highway-env observation or action type made from ``table``, its space made once to try it,
+    and the tables nested in it tried alike: highway-env takes the options unchecked.
+
+    :param where: the table's dotted key, for the message (``highway.observation``)
+    :raises ConfigError: naming the type, its options and what highway-env said
+    """
+    kind = table.get("type")
+    if kind in NOT_ON_THIS_HIGHWAY:
+        raise ConfigError(f"{where}.type = {kind!r}: {NOT_ON_THIS_HIGHWAY[kind]}")
+    try:
+        with np.errstate(all="ignore"):  # a bad option's own warnings would come before the error
+            made = factory(env, table)
+            made.space()
+    except _HIGHWAY_ENV_ERRORS as err:
+        options = {k: v for k, v in table.items() if k != "type"}
+        raise ConfigError(f"{where}: highway-env cannot make type '{kind}' with {options or 'no options'} "
+                          f"({type(err).__name__}: {' '.join(str(err).split())}); "
+                          "its options are in highway-env's documentation") from None
+    known = _init_options(type(made))
+    unknown = sorted(set(table) - known - {"type"})
+    if unknown:  # highway-env's types take **kwargs and drop what they do not know
+        raise ConfigError(f"{where}: highway-env's {type(made).__name__} does not read {', '.join(map(repr, unknown))} "
+                          f"(its options: {', '.join(sorted(known))})")
+    for key, many in _NESTED_TABLES.items():
+        nested = table.get(key)
+        for i, sub in enumerate(nested if many and isinstance(nested, list) else [nested]):
+            if isinstance(sub, dict):
+                _highway_env_type(env, f"{where}.{key}" + (f"[{i}]" if many else ""), factory, sub)
+    return made
 
 
 class DTHighwayEnv(HighwayEnv):
@@ -213,6 +281,7 @@ class DTHighwayEnv(HighwayEnv):
 
     def define_spaces(self) -> None:
         obs_cfg = dict(self.config["observation"])
+        self._highway_env_observation: dict[str, Any] | None = None  # highway-env's own type: its table
         if obs_cfg.get("type") == "Camera":
             obs_cfg.pop("type")
             try:
@@ -230,7 +299,9 @@ class DTHighwayEnv(HighwayEnv):
         elif obs_cfg.get("type") == "Kinematics" and self.dt_config.traffic.fast_road:
             self.observation_type = self._kinematics(FastKinematicObservation, obs_cfg)
         else:
-            self.observation_type = self._from_highway_env("observation", observation_factory)
+            table = _with_tuples(self.config["observation"])
+            self.observation_type = _highway_env_type(self, "highway.observation", observation_factory, table)
+            self._highway_env_observation = table
         act_cfg = dict(self.config["action"])
         if act_cfg.get("type") in ("Driver", "DiscreteDriver"):
             kind = act_cfg.pop("type")
@@ -239,34 +310,9 @@ class DTHighwayEnv(HighwayEnv):
             except (TypeError, ValueError) as err:
                 raise ConfigError(f"highway.action: {err}") from None
         else:
-            self.action_type = self._from_highway_env("action", action_factory)
+            self.action_type = _highway_env_type(self, "highway.action", action_factory, dict(self.config["action"]))
         self.observation_space = self.observation_type.space()
         self.action_space = self.action_type.space()
-
-    def _from_highway_env(self, key: str, factory: Callable[[Any, dict], Any]) -> Any:
-        """A highway-env observation or action type from the ``highway.<key>`` table, with its space
-        made once to try it: highway-env takes the options unchecked (``grid_step = [0, 0]``).
-
-        :raises ConfigError: naming the type, its options and what highway-env said
-        """
-        table = dict(self.config[key])
-        if isinstance(table.get("observation_shape"), list):  # TOML has no tuple (GrayscaleObservation)
-            table["observation_shape"] = tuple(table["observation_shape"])
-        try:
-            with np.errstate(all="ignore"):  # a bad option's own warnings would come before the error
-                made = factory(self, table)
-                made.space()
-        except (TypeError, ValueError, IndexError, KeyError, ZeroDivisionError, AttributeError) as err:
-            options = {k: v for k, v in table.items() if k != "type"}
-            raise ConfigError(f"highway.{key}: highway-env cannot make type '{table.get('type')}' with "
-                              f"{options or 'no options'} ({type(err).__name__}: {' '.join(str(err).split())}); "
-                              "its options are in highway-env's documentation") from None
-        known = _init_options(type(made))
-        unknown = sorted(set(table) - known - {"type"})
-        if unknown:  # highway-env's types take **kwargs and drop what they do not know
-            raise ConfigError(f"highway.{key}: {', '.join(map(repr, unknown))} not an option of highway-env's "
-                              f"{type(made).__name__} (its options: {', '.join(sorted(known))})")
-        return made
 
     def _kinematics(self, cls: type, obs_cfg: dict[str, Any]) -> FastKinematicObservation:
         """A Kinematics observation of ours from the ``highway.observation`` table.
@@ -298,7 +344,16 @@ class DTHighwayEnv(HighwayEnv):
             self._built_for = None
             self._world_seed = int(seed)
         self._apply_nested_config_edits()
-        return super().reset(seed=seed, options=options)
+        try:
+            return super().reset(seed=seed, options=options)
+        except _HIGHWAY_ENV_ERRORS as err:  # options highway-env takes but cannot observe with (weights = [1])
+            table = getattr(self, "_highway_env_observation", None)
+            if table is None or not _raised_in(err, HIGHWAY_ENV_OBSERVATIONS):
+                raise
+            options = {k: v for k, v in table.items() if k != "type"}
+            raise ConfigError(f"highway.observation: highway-env cannot observe with type '{table.get('type')}' and "
+                              f"{options or 'no options'} ({type(err).__name__}: {' '.join(str(err).split())}); "
+                              "its options are in highway-env's documentation") from None
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))

@@ -46,7 +46,7 @@ from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from tqdm.auto import tqdm
 
-from dt_highway.agent_config import RewardConfig
+from dt_highway.agent_config import RewardConfig, parse_train_config
 from dt_highway.config import ConfigError, DTConfig, merge
 from dt_highway.interrupts import interrupted_by_user
 from dt_highway.rl.config import TrainConfig
@@ -331,7 +331,8 @@ def train(cfg: TrainConfig, out: str | Path, timesteps: int | None = None, n_env
             ) from None
     updates = {k: int(v) for k, v in (("timesteps", timesteps), ("n_envs", n_envs)) if v is not None}
     if updates:
-        cfg = TrainConfig.model_validate({**cfg.model_dump(), **updates})
+        cfg = parse_train_config({**cfg.model_dump(), **updates}, "training config with " + ", ".join(
+            f"{k} = {v}" for k, v in updates.items()))
     env_cfg = cfg.env_config()  # ConfigError on a bad scenario or override
     env_dict = env_cfg.to_dict()
     run_cfg, switched_off = lean_env_config(env_cfg) if lean else (env_cfg, [])
