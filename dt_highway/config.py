@@ -169,7 +169,7 @@ class HighwayConfig(_Section):
     simulation_frequency: int = Field(15, ge=1, le=200, description="physics steps per second [Hz]")
     policy_frequency: int = Field(1, ge=1, le=200, description="agent decisions per second [Hz]")
     speed_limit: float = Field(30.0, gt=0, description="lane speed limit [m/s]")
-    road_length: float = Field(1.0e6, gt=100, description="length of the straight road [m]")
+    road_length: float = Field(1.0e6, gt=100, le=1.0e8, description="length of the straight road [m]")
     initial_lane_id: int | None = Field(None, ge=0, description="ego's starting lane (None: random)")
     ego_speed: float = Field(25.0, ge=0, le=40, description="ego's initial speed [m/s]")
     ego_spacing: float = Field(2.0, gt=0, description="stock traffic only: ego spacing ratio [-]")
@@ -186,7 +186,7 @@ class HighwayConfig(_Section):
     screen_width: int = Field(600, ge=16, le=8192, description="top-down render width [px]")
     screen_height: int = Field(150, ge=16, le=8192, description="top-down render height [px]")
     centering_position: tuple[float, float] = (0.3, 0.5)
-    scaling: float = Field(5.5, gt=0, description="top-down render scale [px/m]")
+    scaling: float = Field(5.5, ge=0.5, le=100, description="top-down render scale [px/m]")
     show_trajectories: bool = False
     render_agent: bool = True
     offscreen_rendering: bool | None = None
@@ -224,6 +224,13 @@ class HighwayConfig(_Section):
         low, high = self.reward_speed_range
         if not (math.isfinite(low) and math.isfinite(high) and low < high):  # the speed reward divides by high - low
             raise ValueError(f"reward_speed_range must be [low, high] m/s with low < high (got {[low, high]})")
+        worst, best = self.collision_reward, self.high_speed_reward + self.right_lane_reward
+        if self.normalize_reward and not (math.isfinite(best - worst) and worst < best):  # it divides by best - worst
+            raise ValueError("normalize_reward needs collision_reward < high_speed_reward + right_lane_reward "
+                             f"(got {worst:g} and {best:g}): they are the rewards mapped to 0 and 1")
+        if not all(0 <= c <= 1 for c in self.centering_position):
+            raise ValueError("centering_position must be [x, y], each a share of the screen in [0, 1] "
+                             f"(got {list(self.centering_position)})")
         return self
 
 
@@ -492,10 +499,10 @@ class TrafficConfig(_Section):
     )
     crashed_removal_s: float = Field(5.0, gt=0, description="a crashed NPC is towed away after this long [s]")
     population_size: int = Field(
-        300, ge=1, description="distinct drivers (stable ids) the NPCs are drawn from [-]"
+        300, ge=1, le=100_000, description="distinct drivers (stable ids) the NPCs are drawn from [-]"
     )
     population_seed: int | None = Field(
-        None, description="seed of the driver population (None: derived from the env seed)"
+        None, ge=0, description="seed of the driver population (None: derived from the env seed)"
     )
     spawn_behind_m: float = Field(150.0, ge=0, description="road behind the ego filled at reset [m]")
     spawn_ahead_m: float = Field(350.0, gt=0, description="road ahead of the ego filled at reset [m]")
@@ -547,7 +554,7 @@ class UplinkConfig(LinkConfig):
     """Vehicle -> cloud GNSS fixes."""
 
     noise_sigma_m: float = Field(1.0, ge=0, le=50, description="GNSS horizontal noise, per axis [m]")
-    speed_noise_sigma_mps: float = Field(0.2, ge=0, description="GNSS speed noise [m/s]")
+    speed_noise_sigma_mps: float = Field(0.2, ge=0, le=20, description="GNSS speed noise [m/s]")
     heading_noise_sigma_rad: float = Field(0.02, ge=0, le=3.2, description="GNSS course noise [rad]")
     antenna_height_m: float = Field(1.5, ge=0, description="antenna height above the road [m]")
 
@@ -558,7 +565,7 @@ class DownlinkConfig(LinkConfig):
     latency_mean_s: float = Field(0.05, ge=0, le=10, description="mean latency [s]")
     latency_jitter_s: float = Field(0.01, ge=0, le=10, description="latency standard deviation [s]")
     loss_prob: float = Field(0.0, ge=0, lt=1, description="probability that a message is lost [-]")
-    radius_m: float = Field(200.0, gt=0, description="vehicles within this distance of the ego are sent [m]")
+    radius_m: float = Field(200.0, gt=0, le=1.0e5, description="vehicles within this distance of the ego are sent [m]")
 
 
 class StoreConfig(_Section):
@@ -598,8 +605,9 @@ class TaggerConfig(_Section):
         0.8, ge=0, description="a lane change accepting a time gap below this to the new follower is sudden [s]"
     )
     rate_aggressive_per_min: float = Field(
-        1.0, gt=0, description="twin's model: sudden changes of an aggressive driver [1/min]")
-    rate_normal_per_min: float = Field(0.2, gt=0, description="twin's model: sudden changes of a normal driver [1/min]")
+        1.0, ge=1e-6, le=600, description="twin's model: sudden changes of an aggressive driver [1/min]")
+    rate_normal_per_min: float = Field(
+        0.2, ge=1e-6, le=600, description="twin's model: sudden changes of a normal driver [1/min]")
     prior_aggressive: float = Field(0.2, gt=0, lt=1, description="twin's prior share of aggressive drivers [-]")
     threshold: float = Field(0.6, gt=0, lt=1, description="posterior above which the tag is 'aggressive' [-]")
     max_evidence: int = Field(20, ge=1, description="sudden lane changes kept as evidence per driver [-]")

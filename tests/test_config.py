@@ -293,3 +293,29 @@ def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader()
     for odd in (True, False, "3", None, [1], math.nan, math.inf, -math.inf):
         assert finite_number(odd) is None, odd
     assert positive_number(15) == 15.0 and positive_number(0) is None and positive_number(-1) is None
+
+
+@pytest.mark.parametrize("override, words", [
+    # each was accepted and then a traceback, a crash, a hang or nan (a sweep of every key's edge values)
+    ("highway.collision_reward=0.5", "normalize_reward needs collision_reward < high_speed_reward + right_lane_reward"),
+    ("highway.collision_reward=1e308", "normalize_reward needs"),  # the reward was -inf or nan at every step
+    ("highway.road_length=1e300", "highway.road_length = 1e+300 is out of range: must be <= 100000000.0"),
+    ("highway.scaling=5000", "highway.scaling = 5000 is out of range: must be <= 100"),  # pygame segfault
+    ("highway.scaling=1e-9", "must be >= 0.5"),  # a 2.5 TiB surface
+    ("highway.centering_position=[0.5,1e18]", "each a share of the screen in [0, 1]"),
+    ("twin.downlink.radius_m=1e300", "twin.downlink.radius_m = 1e+300 is out of range"),  # OverflowError
+    ("traffic.population_seed=-1", "traffic.population_seed = -1 is out of range: must be >= 0"),
+    ("traffic.population_size=1000000000", "must be <= 100000"),  # memory climbed for minutes
+    ("twin.tagger.rate_normal_per_min=1e-320", "must be >= 1e-06"),  # nan confidences
+    ("twin.uplink.speed_noise_sigma_mps=1e300", "must be <= 20"),
+])
+def test_values_that_broke_the_env_later_are_refused(override, words):
+    with pytest.raises(ConfigError) as err:
+        load_config(None, [override])
+    assert words in str(err.value) and "\n" not in str(err.value), err.value
+
+
+def test_the_reward_and_screen_checks_keep_every_sensible_setting():
+    assert load_config(None, ["highway.normalize_reward=false", "highway.collision_reward=0.5"])
+    assert load_config(None, ["highway.centering_position=[0,1]", "highway.scaling=0.5"])
+    assert load_config(None, ["highway.scaling=100", "traffic.population_seed=0"])
