@@ -176,17 +176,20 @@ class HighwayConfig(_Section):
     vehicles_density: float = Field(1.0, gt=0, description="stock traffic only: NPC density ratio [-]")
     observation: dict[str, Any] = Field(default_factory=lambda: {"type": "Kinematics"})
     action: dict[str, Any] = Field(default_factory=lambda: {"type": "DiscreteMetaAction"})
-    collision_reward: float = -1.0
+    collision_reward: float = Field(-1.0, description="reward of a collision; with normalize_reward, mapped to 0 "
+                                    "and must be below high_speed_reward + right_lane_reward (mapped to 1) [-]")
     right_lane_reward: float = 0.1
     high_speed_reward: float = 0.4
     lane_change_reward: float = 0.0
     reward_speed_range: tuple[float, float] = (20.0, 30.0)
-    normalize_reward: bool = True
+    normalize_reward: bool = Field(True, description="map the reward from [collision_reward, high_speed_reward + "
+                                   "right_lane_reward] to [0, 1]")
     offroad_terminal: bool = False
     screen_width: int = Field(600, ge=16, le=8192, description="top-down render width [px]")
     screen_height: int = Field(150, ge=16, le=8192, description="top-down render height [px]")
-    centering_position: tuple[float, float] = (0.3, 0.5)
-    scaling: float = Field(5.5, ge=0.5, le=100, description="top-down render scale [px/m]")
+    centering_position: tuple[float, float] = Field(
+        (0.3, 0.5), description="where the ego is drawn on the top-down view: [x, y], each a share of the screen in [0, 1]")
+    scaling: float = Field(5.5, ge=0.02, le=100, description="top-down render scale [px/m]")
     show_trajectories: bool = False
     render_agent: bool = True
     offscreen_rendering: bool | None = None
@@ -565,7 +568,7 @@ class DownlinkConfig(LinkConfig):
     latency_mean_s: float = Field(0.05, ge=0, le=10, description="mean latency [s]")
     latency_jitter_s: float = Field(0.01, ge=0, le=10, description="latency standard deviation [s]")
     loss_prob: float = Field(0.0, ge=0, lt=1, description="probability that a message is lost [-]")
-    radius_m: float = Field(200.0, gt=0, le=1.0e5, description="vehicles within this distance of the ego are sent [m]")
+    radius_m: float = Field(200.0, gt=0, le=1.0e12, description="vehicles within this distance of the ego are sent [m]")
 
 
 class StoreConfig(_Section):
@@ -951,17 +954,32 @@ def validate_section(section: type[_S], where: str, **values: Any) -> _S:
 def deep_merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     """Merge ``update`` into a copy of ``base``, recursing into nested dicts.
 
+    A table that names another ``type`` than the one below it (``highway.observation``) replaces it
+    whole: the options below were the other type's.
+
     :param base: the lower layer
     :param update: the higher layer (wins on conflicts)
     :return: a new dict
     """
     out = copy.deepcopy(base)
     for key, value in update.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and not _another_type(out[key], value):
             out[key] = deep_merge(out[key], value)
         else:
             out[key] = copy.deepcopy(value)
     return out
+
+
+_SHARED_OPTIONS = ({"Kinematics", "OverlayKinematics"},)
+"""Observation types that read the same options: a switch between them keeps the options set"""
+
+
+def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """Whether ``new`` is a table of another ``type`` than ``old`` (an observation or action table): its
+    options were the old type's, so the new table replaces it whole."""
+    if "type" not in new or "type" not in old or new["type"] == old["type"]:
+        return False
+    return not any(old["type"] in group and new["type"] in group for group in _SHARED_OPTIONS)
 
 
 def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:

@@ -301,7 +301,7 @@ def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader()
     ("highway.collision_reward=1e308", "normalize_reward needs"),  # the reward was -inf or nan at every step
     ("highway.road_length=1e300", "highway.road_length = 1e+300 is out of range: must be <= 100000000.0"),
     ("highway.scaling=5000", "highway.scaling = 5000 is out of range: must be <= 100"),  # pygame segfault
-    ("highway.scaling=1e-9", "must be >= 0.5"),  # a 2.5 TiB surface
+    ("highway.scaling=1e-9", "must be >= 0.02"),  # a 2.5 TiB surface
     ("highway.centering_position=[0.5,1e18]", "each a share of the screen in [0, 1]"),
     ("twin.downlink.radius_m=1e300", "twin.downlink.radius_m = 1e+300 is out of range"),  # OverflowError
     ("traffic.population_seed=-1", "traffic.population_seed = -1 is out of range: must be >= 0"),
@@ -317,5 +317,5 @@ def test_values_that_broke_the_env_later_are_refused(override, words):
 
 def test_the_reward_and_screen_checks_keep_every_sensible_setting():
     assert load_config(None, ["highway.normalize_reward=false", "highway.collision_reward=0.5"])
-    assert load_config(None, ["highway.centering_position=[0,1]", "highway.scaling=0.5"])
+    assert load_config(None, ["highway.centering_position=[0,1]", "highway.scaling=0.05", "twin.downlink.radius_m=1e9"])
     assert load_config(None, ["highway.scaling=100", "traffic.population_seed=0"])

@@ -356,6 +356,46 @@ def test_highway_env_types_with_good_options_are_made():
     assert env.action_space.n == 9
     env.close()
 
+
+def test_a_fault_of_ours_that_highway_env_calls_is_not_called_a_config_error(monkeypatch):
+    from highway_env.vehicle.objects import RoadObject
+
+    from dt_highway.world.vehicle import FastIDMVehicle
+
+    def buggy(self, *args, **kwargs):
+        raise IndexError("a bug in our vehicle code")
+
+    env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": {"type": "OccupancyGrid"},
+                                                                   "duration": 2}, "twin": {"preroll_s": 1}})
+    env.reset(seed=0)
+    monkeypatch.setattr(FastIDMVehicle, "to_dict", buggy)  # highway-env's observation calls it
+    with pytest.raises(IndexError, match="a bug in our vehicle code"):
+        env.reset(seed=1)
+    env.close()
+    monkeypatch.undo()
+    monkeypatch.setattr(RoadObject, "lane_distance_to", lambda self, *a, **k: {}["a bug of ours"])
+    with pytest.raises(KeyError):  # TimeToCollision observes while its space is made
+        gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": {"type": "TimeToCollision"}},
+                                                    "traffic": {"fast_road": False}})
+
+
+def test_a_new_observation_type_does_not_inherit_the_old_ones_options():
+    from dt_highway.config import deep_merge
+
+    grid = {"type": "OccupancyGrid", "grid_step": [11, 11]}
+    env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": grid, "duration": 1},
+                                                       "twin": {"preroll_s": 1}})
+    grayscale = {"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2,
+                 "weights": [0.3, 0.6, 0.1]}
+    obs, _ = env.reset(seed=0, options={"config": {"highway": {"observation": grayscale}}})
+    assert obs.shape == (2, 64, 32)  # grid_step is not carried into the grayscale table
+    env.close()
+    kinematics = {"type": "Kinematics", "vehicles_count": 4, "features": ["presence", "x"]}
+    assert deep_merge({"o": kinematics}, {"o": {"type": "OverlayKinematics"}})["o"] == {
+        **kinematics, "type": "OverlayKinematics"}  # the same options: kept
+    assert deep_merge({"o": kinematics}, {"o": {"type": "Camera"}})["o"] == {"type": "Camera"}
+    assert deep_merge({"o": kinematics}, {"o": {"vehicles_count": 6}})["o"]["features"] == ["presence", "x"]
+
 # ----------------------------------------------------------------------------- env.unwrapped.config, highway-env's way
 def test_editing_env_config_before_reset_is_validated_and_applied(small_config):
     env = _make(small_config)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import inspect
 import math
+import os
+import sysconfig
 import traceback
 from collections.abc import Callable
 from pathlib import Path
@@ -118,11 +120,32 @@ _HIGHWAY_ENV_ERRORS = (TypeError, ValueError, IndexError, KeyError, ZeroDivision
 
 HIGHWAY_ENV_OBSERVATIONS = str(Path(inspect.getfile(observation_factory)))
 """highway-env's module of observation types"""
+_HIGHWAY_ENV_DIR = str(Path(inspect.getfile(HighwayEnv)).parents[1]) + os.sep
+_OUR_DIR = str(Path(__file__).resolve().parents[1]) + os.sep
+_LIBRARIES = tuple({sysconfig.get_paths()[k] + os.sep for k in ("stdlib", "platstdlib", "purelib", "platlib")})
 
 
-def _raised_in(err: BaseException, filename: str) -> bool:
-    """Whether ``err`` passed through code of the file ``filename`` on its way up."""
-    return any(frame.filename == filename for frame in traceback.extract_tb(err.__traceback__))
+def _owner(filename: str) -> str | None:
+    """``highway-env``, ``ours`` (this package, or code outside the installed libraries: a test, a user's
+    subclass) or ``None`` (another library: numpy, the standard library)."""
+    if filename.startswith(_HIGHWAY_ENV_DIR):
+        return "highway-env"
+    if filename.startswith(_OUR_DIR):
+        return "ours"
+    return None if not os.path.isabs(filename) or filename.startswith(_LIBRARIES) else "ours"
+
+
+def _highway_env_fault(err: BaseException, through: str | None = None) -> bool:
+    """Whether ``err`` was raised by highway-env's code (or a library it called) rather than by ours
+    that highway-env called: the deepest frame that is highway-env's or ours is highway-env's.
+
+    :param through: a file the error must also have passed through (highway-env's observation module)
+    """
+    frames = [f.filename for f in traceback.extract_tb(err.__traceback__)]
+    if isinstance(err, ConfigError) or (through is not None and through not in frames):
+        return False
+    owners = [owner for owner in map(_owner, frames) if owner is not None]
+    return bool(owners) and owners[-1] == "highway-env"
 
 
 def _with_tuples(table: dict[str, Any]) -> dict[str, Any]:
@@ -150,6 +173,8 @@ def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any],
             made = factory(env, table)
             made.space()
     except _HIGHWAY_ENV_ERRORS as err:
+        if not _highway_env_fault(err):
+            raise
         options = {k: v for k, v in table.items() if k != "type"}
         raise ConfigError(f"{where}: highway-env cannot make type '{kind}' with {options or 'no options'} "
                           f"({type(err).__name__}: {' '.join(str(err).split())}); "
@@ -348,7 +373,7 @@ class DTHighwayEnv(HighwayEnv):
             return super().reset(seed=seed, options=options)
         except _HIGHWAY_ENV_ERRORS as err:  # options highway-env takes but cannot observe with (weights = [1])
             table = getattr(self, "_highway_env_observation", None)
-            if table is None or not _raised_in(err, HIGHWAY_ENV_OBSERVATIONS):
+            if table is None or not _highway_env_fault(err, through=HIGHWAY_ENV_OBSERVATIONS):
                 raise
             options = {k: v for k, v in table.items() if k != "type"}
             raise ConfigError(f"highway.observation: highway-env cannot observe with type '{table.get('type')}' and "
