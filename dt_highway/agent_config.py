@@ -441,6 +441,15 @@ class DQNHyperparameters(BaseModel):
     max_grad_norm: GradientNorm = 10
     stats_window_size: Annotated[int, _whole(1)] = 100
 
+    @model_validator(mode="after")
+    def _memory(self) -> DQNHyperparameters:
+        kwargs = getattr(self, "replay_buffer_kwargs", None) or {}
+        if self.optimize_memory_usage and (not isinstance(kwargs, dict)
+                                           or kwargs.get("handle_timeout_termination", True) is not False):
+            raise ValueError("hyperparameters.optimize_memory_usage = true needs replay_buffer_kwargs = "
+                             "{handle_timeout_termination = false} (stable-baselines3 supports only the two together)")
+        return self
+
 
 HYPERPARAMETERS: dict[str, type[BaseModel]] = {"PPO": PPOHyperparameters, "DQN": DQNHyperparameters}
 """The checked hyperparameters of each algorithm"""
@@ -561,6 +570,11 @@ class TrainConfig(BaseModel):
         mistakes = check_hyperparameters(self.algorithm, self.hyperparameters)
         if mistakes:
             raise ValueError(mistakes)
+        n_steps = _whole_number(self.hyperparameters.get("n_steps", 2048))
+        if (self.algorithm == "PPO" and n_steps is not None and n_steps * self.n_envs < 2
+                and self.hyperparameters.get("normalize_advantage", True)):
+            raise ValueError(f"hyperparameters.n_steps = {n_steps} with n_envs = {self.n_envs} gives rollouts of one "
+                             "step, which PPO cannot normalise: n_steps x n_envs must be >= 2")
         freq = self.hyperparameters.get("train_freq")
         if self.algorithm == "DQN" and isinstance(freq, (list, tuple)) and self.n_envs > 1 and (
                 getattr(freq[1], "value", freq[1]) == "episode"):

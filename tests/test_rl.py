@@ -165,6 +165,8 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
     ("DQN", {"train_freq": [4, "epoch"]}, 'train_freq = [4, \'epoch\']: must be a whole number >= 1 or [N, "step"]'),
     ("DQN", {"gradient_steps": 1.5}, "-1: as many as the env steps of the rollout; 0: no training"),
     ("PPO", {"batch_size": 1}, "batch_size = 1 needs normalize_advantage = false"),
+    ("PPO", {"n_steps": 1, "batch_size": 2}, "n_steps = 1 with n_envs = 1 gives rollouts of one step"),
+    ("DQN", {"optimize_memory_usage": True}, "needs replay_buffer_kwargs = {handle_timeout_termination = false}"),
     ("PPO", {"max_grad_norm": float("-inf")}, "max_grad_norm = -inf: must be a number > 0"),
     ("DQN", {"train_freq": [1, "episode"]}, "counts episodes, which stable-baselines3 does in one env only: set n_envs = 1"),
     ("DQN", {"buffer_size": 0}, "buffer_size = 0"),
@@ -172,7 +174,8 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
 def test_hyperparameters_the_algorithm_would_take_silently_are_refused(algorithm, hyper, words):
     # stable-baselines3 trains with gamma = 2, or fails after the first rollout with gamma = "0.9"
     with pytest.raises(ConfigError) as err:
-        parse_train_config({"kind": "rl", "algorithm": algorithm, "hyperparameters": hyper}, "agents/x.toml")
+        parse_train_config({"kind": "rl", "algorithm": algorithm, "hyperparameters": hyper,
+                            "n_envs": 1 if "n_steps" in hyper else 2}, "agents/x.toml")
     assert str(err.value).startswith("agents/x.toml: hyperparameters.") and words in str(err.value), err.value
     assert "\n" not in str(err.value)
 
@@ -195,6 +198,8 @@ def test_the_hyperparameter_checks_take_what_stable_baselines3_takes(tmp_path):
                              ("PPO", {"n_steps": np.int64(128), "gamma": np.float32(0.99), "max_grad_norm": float("inf")}),
                              ("PPO", {"batch_size": 1, "normalize_advantage": False}),
                              ("DQN", {"train_freq": (np.int64(4), "step"), "gradient_steps": 0}),
+                             ("DQN", {"optimize_memory_usage": True,
+                                      "replay_buffer_kwargs": {"handle_timeout_termination": False}}),
                              ("DQN", {"train_freq": TrainFreq(2, TrainFrequencyUnit.EPISODE), "gradient_steps": -3})):
         assert check_hyperparameters(algorithm, hyper) is None, hyper
     one = parse_train_config({"kind": "rl", "algorithm": "DQN", "n_envs": 1, "hyperparameters": {
