@@ -341,7 +341,9 @@ def test_highway_env_types_with_good_options_are_made():
         env.close()
     for action, words in (({"type": "ContinuousAction", "bogus": 2}, "highway-env's ContinuousAction does not read 'bogus'"),
                           ({"type": "DiscreteAction", "speed_range": [0, 10]},  # DiscreteAction does not hand it on
-                           "highway-env's DiscreteAction does not read 'speed_range'")):
+                           "highway-env's DiscreteAction does not read 'speed_range'"),
+                          ({"type": "DiscreteMetaAction", "target_speeds": []},  # an IndexError as the ego was made
+                           r"highway.action.target_speeds = \[\]: must be a non-empty list of speeds >= 0")):
         with pytest.raises(ConfigError, match=words):
             gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": action}})
     grayscale = {"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2, "weights": [0.3, 0.6, 0.1]}

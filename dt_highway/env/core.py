@@ -62,6 +62,7 @@ from dt_highway.env.observations import (
     OverlayKinematics,
     TwinTaggedKinematics,
 )
+from dt_highway.jsonio import finite_number
 from dt_highway.metrics.safety import CutIn, SafetyMonitor
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.perception import Detector, Fusion, SimulatedDetector
@@ -168,6 +169,10 @@ def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any],
     kind = table.get("type")
     if kind in NOT_ON_THIS_HIGHWAY:
         raise ConfigError(f"{where}.type = {kind!r}: {NOT_ON_THIS_HIGHWAY[kind]}")
+    speeds = table.get("target_speeds")  # DiscreteMetaAction's: read only when the ego is made
+    if "target_speeds" in table and not (isinstance(speeds, list) and speeds and all(
+            finite_number(v) is not None and v >= 0 for v in speeds)):
+        raise ConfigError(f"{where}.target_speeds = {speeds!r}: must be a non-empty list of speeds >= 0 [m/s]")
     try:
         with np.errstate(all="ignore"):  # a bad option's own warnings would come before the error
             made = factory(env, table)
