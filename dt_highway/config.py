@@ -200,7 +200,7 @@ class HighwayConfig(_Section):
     @classmethod
     def _known_type(cls, table: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         allowed = OBSERVATION_TYPES if info.field_name == "observation" else ACTION_TYPES
-        if info.field_name == "observation" and table.get("type") in NOT_ON_THIS_HIGHWAY:
+        if info.field_name == "observation" and str(table.get("type")) in NOT_ON_THIS_HIGHWAY:
             raise PydanticCustomError(
                 "unknown_type", "{why} (allowed: {allowed})",
                 {"key": "type", "got": table["type"], "why": NOT_ON_THIS_HIGHWAY[table["type"]],
@@ -977,8 +977,8 @@ _SHARED_OPTIONS = ({"Kinematics", "OverlayKinematics"},)
 def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
     """Whether ``new`` is a table of another ``type`` than ``old`` (an observation or action table): its
     options were the old type's, so the new table replaces it whole."""
-    if "type" not in new or "type" not in old or new["type"] == old["type"]:
-        return False
+    if not (isinstance(new.get("type"), str) and isinstance(old.get("type"), str)) or new["type"] == old["type"]:
+        return False  # not both named (a bad name is refused by the validation that follows)
     return not any(old["type"] in group and new["type"] in group for group in _SHARED_OPTIONS)
 
 

@@ -308,6 +308,7 @@ def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader()
     ("traffic.population_size=1000000000", "must be <= 100000"),  # memory climbed for minutes
     ("twin.tagger.rate_normal_per_min=1e-320", "must be >= 1e-06"),  # nan confidences
     ("twin.uplink.speed_noise_sigma_mps=1e300", "must be <= 20"),
+    ("highway.observation.type=[1]", "highway.observation.type = [1]: not a highway-env or dt-highway observation type"),
 ])
 def test_values_that_broke_the_env_later_are_refused(override, words):
     with pytest.raises(ConfigError) as err:

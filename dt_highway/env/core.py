@@ -167,8 +167,8 @@ def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any],
     :raises ConfigError: naming the type, its options and what highway-env said
     """
     kind = table.get("type")
-    if kind in NOT_ON_THIS_HIGHWAY:
-        raise ConfigError(f"{where}.type = {kind!r}: {NOT_ON_THIS_HIGHWAY[kind]}")
+    if str(kind) in NOT_ON_THIS_HIGHWAY:
+        raise ConfigError(f"{where}.type = {kind!r}: {NOT_ON_THIS_HIGHWAY[str(kind)]}")
     speeds = table.get("target_speeds")  # DiscreteMetaAction's: read only when the ego is made
     if "target_speeds" in table and not (isinstance(speeds, list) and speeds and all(
             finite_number(v) is not None and v >= 0 for v in speeds)):
