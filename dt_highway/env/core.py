@@ -149,6 +149,11 @@ def _highway_env_fault(err: BaseException, through: str | None = None) -> bool:
     return bool(owners) and owners[-1] == "highway-env"
 
 
+def _highway_env_says(err: BaseException) -> str:
+    """The end of a one-line error about highway-env's options: what it raised, on one line."""
+    return f"({type(err).__name__}: {' '.join(str(err).split())}); its options are in highway-env's documentation"
+
+
 def _with_tuples(table: dict[str, Any]) -> dict[str, Any]:
     """``table`` with a TOML list where highway-env wants a tuple (``observation_shape``) made one, nested tables too."""
     out = {k: _with_tuples(v) if isinstance(v, dict) else v for k, v in table.items()}
@@ -182,8 +187,7 @@ def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any],
             raise
         options = {k: v for k, v in table.items() if k != "type"}
         raise ConfigError(f"{where}: highway-env cannot make type '{kind}' with {options or 'no options'} "
-                          f"({type(err).__name__}: {' '.join(str(err).split())}); "
-                          "its options are in highway-env's documentation") from None
+                          + _highway_env_says(err)) from None
     known = _init_options(type(made))
     unknown = sorted(set(table) - known - {"type"})
     if unknown:  # highway-env's types take **kwargs and drop what they do not know
@@ -382,8 +386,7 @@ class DTHighwayEnv(HighwayEnv):
                 raise
             options = {k: v for k, v in table.items() if k != "type"}
             raise ConfigError(f"highway.observation: highway-env cannot observe with type '{table.get('type')}' and "
-                              f"{options or 'no options'} ({type(err).__name__}: {' '.join(str(err).split())}); "
-                              "its options are in highway-env's documentation") from None
+                              f"{options or 'no options'} " + _highway_env_says(err)) from None
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))
