@@ -444,10 +444,14 @@ class DQNHyperparameters(BaseModel):
     @model_validator(mode="after")
     def _memory(self) -> DQNHyperparameters:
         kwargs = getattr(self, "replay_buffer_kwargs", None) or {}
-        if self.optimize_memory_usage and (not isinstance(kwargs, dict)
-                                           or kwargs.get("handle_timeout_termination", True) is not False):
+        if not self.optimize_memory_usage:
+            return self
+        if not isinstance(kwargs, dict) or bool(kwargs.get("handle_timeout_termination", True)):
             raise ValueError("hyperparameters.optimize_memory_usage = true needs replay_buffer_kwargs = "
                              "{handle_timeout_termination = false} (stable-baselines3 supports only the two together)")
+        if self.n_steps > 1:
+            raise ValueError(f"hyperparameters.optimize_memory_usage = true needs n_steps = 1 (got {self.n_steps}): "
+                             "stable-baselines3's n-step replay buffer does not support it")
         return self
 
 

@@ -970,8 +970,9 @@ def deep_merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-_SHARED_OPTIONS = ({"Kinematics", "OverlayKinematics"},)
-"""Observation types that read the same options: a switch between them keeps the options set"""
+_SHARED_OPTIONS = ({"Kinematics", "OverlayKinematics"}, {"ContinuousAction", "DiscreteAction"})
+"""Types that read the same options (but ``speed_range``, which DiscreteAction does not): a switch between
+them keeps the options set"""
 
 
 def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
@@ -1182,7 +1183,8 @@ def load_config(
         tree = deep_merge(tree, _lift_highway_keys(read_scenario(scenario)))
     if extra:
         tree = deep_merge(tree, _lift_highway_keys(extra))
+    layer: dict[str, Any] = {}  # the --set values as one layer: a type named after its options keeps them
     for text in overrides:
-        tree = deep_merge(tree, parse_override(text))
-    return validate(tree)
+        layer = deep_merge(layer, parse_override(text))
+    return validate(deep_merge(tree, layer))
 

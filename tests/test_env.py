@@ -343,7 +343,9 @@ def test_highway_env_types_with_good_options_are_made():
                           ({"type": "DiscreteAction", "speed_range": [0, 10]},  # DiscreteAction does not hand it on
                            "highway-env's DiscreteAction does not read 'speed_range'"),
                           ({"type": "DiscreteMetaAction", "target_speeds": []},  # an IndexError as the ego was made
-                           r"highway.action.target_speeds = \[\]: must be a non-empty list of speeds >= 0")):
+                           r"highway.action.target_speeds = \[\]: must be 2 or more speeds >= 0 m/s in increasing"),
+                          ({"type": "DiscreteMetaAction", "target_speeds": [25]}, "must be 2 or more speeds"),
+                          ({"type": "DiscreteMetaAction", "target_speeds": [30, 20]}, "in increasing order")):
         with pytest.raises(ConfigError, match=words):
             gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": action}})
     grayscale = {"type": "GrayscaleObservation", "observation_shape": [64, 32], "stack_size": 2, "weights": [0.3, 0.6, 0.1]}
@@ -353,6 +355,10 @@ def test_highway_env_types_with_good_options_are_made():
     obs, _ = env.reset(seed=0)  # nested lists made tuples too
     assert obs[1].shape == (2, 64, 32)
     env.close()
+    for speeds in ((20, 25, 30), np.array([20.0, 30.0]), [np.int64(20), 30], None):  # as highway-env takes them
+        env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": {
+            "type": "DiscreteMetaAction", "target_speeds": speeds}}})
+        env.close()
     discrete = {"type": "DiscreteAction", "actions_per_axis": 3}
     env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"action": discrete}})
     assert env.action_space.n == 9
@@ -397,6 +403,17 @@ def test_a_new_observation_type_does_not_inherit_the_old_ones_options():
         **kinematics, "type": "OverlayKinematics"}  # the same options: kept
     assert deep_merge({"o": kinematics}, {"o": {"type": "Camera"}})["o"] == {"type": "Camera"}
     assert deep_merge({"o": kinematics}, {"o": {"vehicles_count": 6}})["o"]["features"] == ["presence", "x"]
+    continuous = {"type": "ContinuousAction", "longitudinal": False}
+    assert deep_merge({"a": continuous}, {"a": {"type": "DiscreteAction"}})["a"] == {
+        "type": "DiscreteAction", "longitudinal": False}  # DiscreteAction reads ContinuousAction's options
+
+
+def test_a_type_named_after_its_options_on_the_command_line_keeps_them(tmp_path):
+    scenario = tmp_path / "kinematics.toml"
+    scenario.write_text('[highway.observation]\ntype = "Kinematics"\nvehicles_count = 5\n')
+    cfg = load_config(scenario, ["camera.enabled=true", "highway.observation.depth=true",
+                                 "highway.observation.type=Camera"])
+    assert cfg.highway.observation == {"type": "Camera", "depth": True}  # the scenario's Kinematics options go
 
 # ----------------------------------------------------------------------------- env.unwrapped.config, highway-env's way
 def test_editing_env_config_before_reset_is_validated_and_applied(small_config):

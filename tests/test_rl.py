@@ -167,6 +167,8 @@ def test_policy_and_training_file_mistakes_are_one_line(tmp_path, capsys):
     ("PPO", {"batch_size": 1}, "batch_size = 1 needs normalize_advantage = false"),
     ("PPO", {"n_steps": 1, "batch_size": 2}, "n_steps = 1 with n_envs = 1 gives rollouts of one step"),
     ("DQN", {"optimize_memory_usage": True}, "needs replay_buffer_kwargs = {handle_timeout_termination = false}"),
+    ("DQN", {"optimize_memory_usage": True, "replay_buffer_kwargs": {"handle_timeout_termination": False},
+             "n_steps": 2}, "optimize_memory_usage = true needs n_steps = 1 (got 2)"),
     ("PPO", {"max_grad_norm": float("-inf")}, "max_grad_norm = -inf: must be a number > 0"),
     ("DQN", {"train_freq": [1, "episode"]}, "counts episodes, which stable-baselines3 does in one env only: set n_envs = 1"),
     ("DQN", {"buffer_size": 0}, "buffer_size = 0"),
@@ -199,7 +201,7 @@ def test_the_hyperparameter_checks_take_what_stable_baselines3_takes(tmp_path):
                              ("PPO", {"batch_size": 1, "normalize_advantage": False}),
                              ("DQN", {"train_freq": (np.int64(4), "step"), "gradient_steps": 0}),
                              ("DQN", {"optimize_memory_usage": True,
-                                      "replay_buffer_kwargs": {"handle_timeout_termination": False}}),
+                                      "replay_buffer_kwargs": {"handle_timeout_termination": np.False_}}),
                              ("DQN", {"train_freq": TrainFreq(2, TrainFrequencyUnit.EPISODE), "gradient_steps": -3})):
         assert check_hyperparameters(algorithm, hyper) is None, hyper
     one = parse_train_config({"kind": "rl", "algorithm": "DQN", "n_envs": 1, "hyperparameters": {

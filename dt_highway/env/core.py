@@ -22,10 +22,12 @@ from __future__ import annotations
 import inspect
 import math
 import os
+import site
 import sysconfig
 import traceback
 from collections.abc import Callable
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -62,7 +64,6 @@ from dt_highway.env.observations import (
     OverlayKinematics,
     TwinTaggedKinematics,
 )
-from dt_highway.jsonio import finite_number
 from dt_highway.metrics.safety import CutIn, SafetyMonitor
 from dt_highway.overlay import OverlayStabilizer
 from dt_highway.perception import Detector, Fusion, SimulatedDetector
@@ -119,34 +120,53 @@ _HIGHWAY_ENV_ERRORS = (TypeError, ValueError, IndexError, KeyError, ZeroDivision
 """What highway-env raises on options it cannot use"""
 
 
-HIGHWAY_ENV_OBSERVATIONS = str(Path(inspect.getfile(observation_factory)))
+HIGHWAY_ENV_OBSERVATIONS = "highway_env.envs.common.observation"
 """highway-env's module of observation types"""
-_HIGHWAY_ENV_DIR = str(Path(inspect.getfile(HighwayEnv)).parents[1]) + os.sep
-_OUR_DIR = str(Path(__file__).resolve().parents[1]) + os.sep
-_LIBRARIES = tuple({sysconfig.get_paths()[k] + os.sep for k in ("stdlib", "platstdlib", "purelib", "platlib")})
+_LIBRARIES = tuple({os.path.realpath(p) + os.sep for p in (
+    *(sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")),
+    *site.getsitepackages(), site.getusersitepackages())})
 
 
-def _owner(filename: str) -> str | None:
+def _module(frame: FrameType) -> str:
+    return str(frame.f_globals.get("__name__", ""))
+
+
+def _owner(frame: FrameType) -> str | None:
     """``highway-env``, ``ours`` (this package, or code outside the installed libraries: a test, a user's
-    subclass) or ``None`` (another library: numpy, the standard library)."""
-    if filename.startswith(_HIGHWAY_ENV_DIR):
-        return "highway-env"
-    if filename.startswith(_OUR_DIR):
-        return "ours"
-    return None if not os.path.isabs(filename) or filename.startswith(_LIBRARIES) else "ours"
+    subclass) or ``None`` (another library: numpy, the standard library), by the frame's module and file."""
+    package = _module(frame).split(".")[0]
+    if package in ("highway_env", "dt_highway"):
+        return "highway-env" if package == "highway_env" else "ours"
+    filename = frame.f_code.co_filename
+    if not os.path.isabs(filename) or {"site-packages", "dist-packages"} & set(Path(filename).parts):
+        return None
+    return None if os.path.realpath(filename).startswith(_LIBRARIES) else "ours"
 
 
 def _highway_env_fault(err: BaseException, through: str | None = None) -> bool:
     """Whether ``err`` was raised by highway-env's code (or a library it called) rather than by ours
     that highway-env called: the deepest frame that is highway-env's or ours is highway-env's.
 
-    :param through: a file the error must also have passed through (highway-env's observation module)
+    :param through: a module the error must also have passed through (highway-env's observation module)
     """
-    frames = [f.filename for f in traceback.extract_tb(err.__traceback__)]
-    if isinstance(err, ConfigError) or (through is not None and through not in frames):
+    frames = [frame for frame, _ in traceback.walk_tb(err.__traceback__)]
+    if isinstance(err, ConfigError) or (through is not None and through not in map(_module, frames)):
         return False
     owners = [owner for owner in map(_owner, frames) if owner is not None]
     return bool(owners) and owners[-1] == "highway-env"
+
+
+def _speeds_ok(speeds: Any) -> bool:
+    """Whether DiscreteMetaAction's ``target_speeds`` (a list, tuple or array) can be used: highway-env maps a
+    speed onto them by their first and last, so they need two or more, increasing."""
+    if isinstance(speeds, (str, bytes, dict)):
+        return False
+    try:
+        values = np.asarray(speeds, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return values.ndim == 1 and values.size >= 2 and bool(np.all(np.isfinite(values)) and values[0] >= 0
+                                                          and np.all(np.diff(values) > 0))
 
 
 def _highway_env_says(err: BaseException) -> str:
@@ -174,10 +194,9 @@ def _highway_env_type(env: Any, where: str, factory: Callable[[Any, dict], Any],
     kind = table.get("type")
     if str(kind) in NOT_ON_THIS_HIGHWAY:
         raise ConfigError(f"{where}.type = {kind!r}: {NOT_ON_THIS_HIGHWAY[str(kind)]}")
-    speeds = table.get("target_speeds")  # DiscreteMetaAction's: read only when the ego is made
-    if "target_speeds" in table and not (isinstance(speeds, list) and speeds and all(
-            finite_number(v) is not None and v >= 0 for v in speeds)):
-        raise ConfigError(f"{where}.target_speeds = {speeds!r}: must be a non-empty list of speeds >= 0 [m/s]")
+    if table.get("target_speeds") is not None and not _speeds_ok(table["target_speeds"]):
+        raise ConfigError(f"{where}.target_speeds = {table['target_speeds']!r}: must be 2 or more speeds >= 0 m/s "
+                          "in increasing order")  # DiscreteMetaAction's, read only when the ego is made
     try:
         with np.errstate(all="ignore"):  # a bad option's own warnings would come before the error
             made = factory(env, table)
