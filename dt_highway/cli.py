@@ -561,12 +561,17 @@ def _interrupted(specs: Sequence[Any], out: str) -> None:
     print(f"dt-highway study: interrupted, {n} of {len(specs)} trials done in {out}; {how}", file=sys.stderr)
 
 
+def _two_places(x: float | None) -> str:
+    """A figure of a summary line: ``-`` where there is none (no closing samples: no TTC)."""
+    return "-" if x is None or not math.isfinite(x) else f"{x:.2f}"
+
+
 def _print_summary(path: Path) -> None:
     s = json.loads(path.read_text())
     width = max((len(cond) for cond in s["conditions"]), default=8)  # the columns line up (adas-threat: 11)
     for cond, c in s["conditions"].items():
         sv, ttc = c["speed_variance_kmh2"], c["ttc_mean_s"]
-        f = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+        f = _two_places
         print(f"  {cond:{width}s} n={c['n']:3d}  speed variance {f(sv['mean'])} (km/h)^2  mean TTC {f(ttc['mean'])} s  "
               f"collisions {c['collisions']}  cut-ins {c['cut_ins']} ({c['cut_ins_marked_in_time']} marked in time)")
 
@@ -963,8 +968,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"{args.driver}: {args.episodes} episodes of {scenario} ({args.condition}), seeds "
               f"{result['seeds'][0]}..{result['seeds'][1]}")
         print(f"mean return {result['mean_return']:.2f}  collision rate {result['collision_rate']:.2f}  "
-              f"mean speed {result['mean_speed_kmh']:.1f} km/h  mean TTC {result['mean_ttc_s']:.2f} s  "
-              f"cut-in min TTC {result['cut_in_ttc_min_s']:.2f} s ({result['cut_ins']} cut-ins)")
+              f"mean speed {result['mean_speed_kmh']:.1f} km/h  mean TTC {_two_places(result['mean_ttc_s'])} s  "
+              f"cut-in min TTC {_two_places(result['cut_in_ttc_min_s'])} s ({result['cut_ins']} cut-ins)")
     return 0
 
 

@@ -231,3 +231,11 @@ def test_an_unknown_observation_or_action_type_is_a_one_line_error():
     proc = _cli("run", "--set", "highway.action.type=Nope", "--quiet")
     _one_line_error(proc, "highway.action.type = 'Nope'")
     assert "Driver, DiscreteDriver" in proc.stderr and "DiscreteMetaAction" in proc.stderr
+
+
+def test_evaluate_shows_a_dash_where_there_is_no_ttc():
+    # a 3 s episode without a closing leader has no TTC sample: "-", as the study's summary shows it, not "nan"
+    run = _cli("evaluate", "--driver", "agents/idm.toml", "--episodes", "1", "--quiet",
+               "--set", "highway.duration=3", "--set", "twin.preroll_s=1")
+    assert run.returncode == 0 and "mean TTC - s  cut-in min TTC - s (0 cut-ins)" in run.stdout, run
+    assert "nan" not in run.stdout
