@@ -27,7 +27,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter,
 
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, find_file, load_config, read_toml
-from dt_highway.jsonio import finite_number
+from dt_highway.jsonio import finite_number, whole_number
 
 # ----------------------------------------------------------------------------- the Driver action's limits
 ACCEL_MIN_MPS2 = -8.0
@@ -328,15 +328,9 @@ def _real(value: Any) -> float | None:
     return float(value)
 
 
-def _whole_number(value: Any) -> int | None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        return None
-    return int(value)
-
-
 def _whole(low: int) -> Any:
     def check(value: Any) -> int:
-        number = _whole_number(value)
+        number = whole_number(value)
         if number is None or number < low:
             raise ValueError(f"must be a whole number >= {low}")
         return number
@@ -363,17 +357,17 @@ def _number(low: float, high: float | None = None, low_open: bool = False, sched
 
 
 def _train_freq(value: Any) -> Any:
-    if (number := _whole_number(value)) is not None and number >= 1:
+    if (number := whole_number(value)) is not None and number >= 1:
         return number
     if isinstance(value, (list, tuple)) and len(value) == 2:  # [4, "step"], SB3's TrainFreq too
-        count, unit = _whole_number(value[0]), getattr(value[1], "value", value[1])
+        count, unit = whole_number(value[0]), getattr(value[1], "value", value[1])
         if count is not None and count >= 1 and unit in ("step", "episode"):
             return (count, unit)
     raise ValueError('must be a whole number >= 1 or [N, "step"] / [N, "episode"]')
 
 
 def _gradient_steps(value: Any) -> int:
-    number = _whole_number(value)
+    number = whole_number(value)
     if number is None:
         raise ValueError("must be a whole number (-1: as many as the env steps of the rollout; 0: no training)")
     return number
@@ -574,7 +568,7 @@ class TrainConfig(BaseModel):
         mistakes = check_hyperparameters(self.algorithm, self.hyperparameters)
         if mistakes:
             raise ValueError(mistakes)
-        n_steps = _whole_number(self.hyperparameters.get("n_steps", 2048))
+        n_steps = whole_number(self.hyperparameters.get("n_steps", 2048))
         if (self.algorithm == "PPO" and n_steps is not None and n_steps * self.n_envs < 2
                 and self.hyperparameters.get("normalize_advantage", True)):
             raise ValueError(f"hyperparameters.n_steps = {n_steps} with n_envs = {self.n_envs} gives rollouts of one "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from typing import Any
 
 
@@ -25,6 +26,13 @@ def finite_number(value: Any) -> float | None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         return None
     return float(value)
+
+
+def whole_number(value: Any) -> int | None:
+    """A value as an int when it is an integer (numpy's too; ``true``/``false`` are not), else ``None``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        return None
+    return int(value)
 
 
 def positive_number(value: Any) -> float | None:

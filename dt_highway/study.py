@@ -21,7 +21,6 @@ Ray backend, SIGTERM does the same, and so does SIGINT when the study was starte
 from __future__ import annotations
 
 import json
-import numbers
 import os
 import signal
 import socket
@@ -46,7 +45,7 @@ from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.interrupts import SignalsSeen, interrupted_by_user, signals_held
-from dt_highway.jsonio import dump_json
+from dt_highway.jsonio import dump_json, whole_number
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
     TrialWriter,
@@ -236,11 +235,6 @@ class StudyResult:
     failed: list[dict[str, str]] = field(default_factory=list)
 
 
-def _whole(value: object) -> bool:
-    """An integer (numpy's too), not ``True``/``False``."""
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
-
-
 def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, seed: int,
          scenario: str | None = None, overrides: Sequence[str] = (), parquet: bool = False) -> list[TrialSpec]:
     """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``).
@@ -251,9 +245,9 @@ def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, s
     """
     if isinstance(conditions, str):
         raise ConfigError(f"conditions must be a list of names, e.g. ['baseline', 'adas'] (got the string {conditions!r})")
-    if not _whole(trials):
+    if whole_number(trials) is None:
         raise ConfigError(f"--trials must be a whole number >= 1 (got {trials!r})")
-    if not _whole(seed) or seed < 0:
+    if whole_number(seed) is None or seed < 0:
         raise ConfigError(f"--seed must be a whole number >= 0 (got {seed!r})")
     trials, seed = int(trials), int(seed)  # numpy integers too
     for c in conditions:
@@ -280,7 +274,7 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     :raises ConfigError: on a backend that cannot run (:func:`check_backend`) or a resumed study's other settings
     """
     check_backend(backend, ray_address)
-    if not _whole(workers) or workers < 1:
+    if whole_number(workers) is None or workers < 1:
         raise ConfigError(f"--workers must be a whole number >= 1 (got {workers!r})")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
