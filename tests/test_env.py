@@ -365,6 +365,29 @@ def test_highway_env_types_with_good_options_are_made():
     env.close()
 
 
+@pytest.mark.parametrize(("observation", "fast_road", "says"), [
+    ({"type": "Kinematics", "features": ["presence", "nope"]}, True, "'nope' is not a feature of type 'Kinematics'"),
+    ({"type": "OverlayKinematics", "features": ["x", "nope"]}, True, "features: 'nope' is not a feature"),
+    ({"type": "Kinematics", "features_range": {"vxx": [0, 1]}}, True, "features_range: 'vxx' is not a feature"),
+    ({"type": "Kinematics", "features_range": {"vxx": [0, 1]}}, False, "features_range: 'vxx' is not a feature"),
+    ({"type": "Kinematics", "features": ["nope"]}, False, "cannot observe with type 'Kinematics'"),
+    ({"type": "OccupancyGrid", "features": ["presence", "nope"]}, True, "'nope' is not a feature of type 'OccupancyGrid'"),
+    ({"type": "OccupancyGrid", "features_range": {"nope": [0, 1]}}, True, "features_range: 'nope'"),
+])
+def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, says):
+    # before: a KeyError traceback (our Kinematics), or a name left silently unused (an empty grid layer)
+    with pytest.raises(ConfigError, match=says):
+        env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": observation, "duration": 1},
+                                                           "twin": {"preroll_s": 1}, "traffic": {"fast_road": fast_road}})
+        env.reset(seed=0)
+    for good in ({"type": "OccupancyGrid", "features": ["presence", "on_road", "vx"]},
+                 {"type": "Kinematics", "features": ["presence", "x", "cos_d"], "features_range": {"vx": [-5, 5]}}):
+        env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": good, "duration": 1},
+                                                           "twin": {"preroll_s": 1}, "traffic": {"fast_road": fast_road}})
+        env.reset(seed=0)
+        env.close()
+
+
 def test_a_fault_of_ours_that_highway_env_calls_is_not_called_a_config_error(monkeypatch):
     from highway_env.vehicle.objects import RoadObject
 

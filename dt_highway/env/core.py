@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 from highway_env.envs.common.action import action_factory
-from highway_env.envs.common.observation import observation_factory
+from highway_env.envs.common.observation import KinematicObservation, OccupancyGridObservation, observation_factory
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
@@ -70,7 +70,7 @@ from dt_highway.perception import Detector, Fusion, SimulatedDetector
 from dt_highway.twin.cloud import CloudTwin, Downlink, TwinView
 from dt_highway.twin.tagger import HighwayMap
 from dt_highway.twin.uplink import Uplink, VehicleState
-from dt_highway.world.observation import FastKinematicObservation
+from dt_highway.world.observation import FastKinematicObservation, check_feature_names
 from dt_highway.world.road import FastRoad
 from dt_highway.world.traffic import (
     EGO_ID,
@@ -398,7 +398,7 @@ class DTHighwayEnv(HighwayEnv):
             self._world_seed = int(seed)
         self._apply_nested_config_edits()
         try:
-            return super().reset(seed=seed, options=options)
+            out = super().reset(seed=seed, options=options)
         except _HIGHWAY_ENV_ERRORS as err:  # options highway-env takes but cannot observe with (weights = [1])
             table = getattr(self, "_highway_env_observation", None)
             if table is None or not _highway_env_fault(err, through=HIGHWAY_ENV_OBSERVATIONS):
@@ -406,6 +406,19 @@ class DTHighwayEnv(HighwayEnv):
             options = {k: v for k, v in table.items() if k != "type"}
             raise ConfigError(f"highway.observation: highway-env cannot observe with type '{table.get('type')}' and "
                               f"{options or 'no options'} " + _highway_env_says(err)) from None
+        self._check_highway_env_features()
+        return out
+
+    def _check_highway_env_features(self) -> None:
+        """Refuse feature names highway-env's own Kinematics and OccupancyGrid would leave unused (an unknown
+        ``features_range`` key; an OccupancyGrid feature): our Kinematics checks its own at its first observation."""
+        obs = self.observation_type
+        if getattr(self, "_highway_env_observation", None) is None or self.vehicle is None or not isinstance(
+                obs, (KinematicObservation, OccupancyGridObservation)):
+            return
+        also = ("on_road",) if isinstance(obs, OccupancyGridObservation) else ()  # a layer the grid draws itself
+        check_feature_names(obs.features, obs.features_range, set(self.vehicle.to_dict()),
+                            str(self.config["observation"].get("type")), also)
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))

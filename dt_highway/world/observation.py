@@ -16,21 +16,44 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from highway_env.envs.common.observation import KinematicObservation
 
+from dt_highway.config import ConfigError
+
 if TYPE_CHECKING:
     from highway_env.envs.common.abstract import AbstractEnv
     from highway_env.vehicle.objects import RoadObject
+
+
+def check_feature_names(features: list[str], features_range: dict[str, Any] | None, columns: set[str],
+                        type_name: str, also: tuple[str, ...] = ()) -> None:
+    """Refuse ``features`` and ``features_range`` keys that no vehicle row has: highway-env leaves an
+    unknown ``features_range`` key (and ``OccupancyGrid`` an unknown feature) silently unused.
+
+    :param columns: the keys of the vehicles' ``to_dict()`` rows
+    :param type_name: the observation type, for the message
+    :param also: names the type reads beside the rows' columns (``OccupancyGrid``'s ``on_road``)
+    :raises ConfigError: one line naming the unknown names and the known ones
+    """
+    known = columns | set(also)
+    for key, names in (("features", list(features)), ("features_range", list(features_range or {}))):
+        unknown = [name for name in names if name not in known]
+        if unknown:
+            raise ConfigError(f"highway.observation.{key}: {', '.join(map(repr, unknown))} is not a feature of type "
+                              f"'{type_name}' (its features: {', '.join(sorted(known))})")
 
 
 class FastKinematicObservation(KinematicObservation):
     """highway-env's ``Kinematics`` observation (same options, same values), built with numpy.
 
     :raises ValueError: if a feature is named twice (pandas would give the column twice)
+    :raises ConfigError: at the first observation, for a feature or ``features_range`` key that is
+        not a column of the vehicles' ``to_dict()`` rows
     """
 
     def __init__(self, env: AbstractEnv, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if len(set(self.features)) != len(self.features):
             raise ValueError(f"observation features must be distinct names (got {self.features})")
+        self._names_checked = False
 
     def observed(self) -> list[RoadObject]:
         """The observer and the objects of the observation's rows, in row order (highway-env's
@@ -51,10 +74,11 @@ class FastKinematicObservation(KinematicObservation):
             origin = ego if not self.absolute else None
             records += [v.to_dict(origin, observe_intentions=self.observe_intentions) for v in close]
         # one column per feature, as pandas builds it from the records (a key some rows lack is
-        # NaN there; one that no row has is pandas' KeyError)
-        missing = [f for f in self.features if not any(f in r for r in records)]
-        if missing:
-            raise KeyError(f"observation features {missing} are not in the vehicles' to_dict() rows")
+        # NaN there; one that no row has is pandas' KeyError, a configuration error here)
+        if not self._names_checked:
+            check_feature_names(self.features, self.features_range, set().union(*records),
+                                self.env.config["observation"].get("type", "Kinematics"))
+            self._names_checked = True
         columns = {f: np.array([r.get(f, np.nan) for r in records]) for f in self.features}
         if self.normalize:
             columns = self.normalize_obs(columns)
