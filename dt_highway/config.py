@@ -121,10 +121,15 @@ KINEMATICS_OPTIONS = ("type", "features", "vehicles_count", "features_range", "a
 also takes ``threat``)"""
 
 
+MAX_OBSERVED = 1000
+"""Most rows of a Kinematics observation: 10 million made each observation 200 MB of zeros"""
+
+
 def _check_kinematics_options(table: dict[str, Any]) -> None:
     """Refuse what highway-env's Kinematics would silently accept or fail on later: an unknown
-    option, ``vehicles_count`` below 1, an ``order`` other than sorted/shuffled, ``features`` that
-    is not a non-empty list of names (``[]`` fell back to the defaults, ``"xy"`` read as ``x``, ``y``),
+    option, ``vehicles_count`` below 1 or above :data:`MAX_OBSERVED`, an ``order`` other than
+    sorted/shuffled, ``features`` that is not a non-empty list of names (``[]`` fell back to the
+    defaults, ``"xy"`` read as ``x``, ``y``),
     a ``features_range`` that is not ``{name: [low, high]}`` with low < high, and a switch that is
     not true or false."""
     overlay = table.get("type") == "OverlayKinematics"
@@ -136,8 +141,9 @@ def _check_kinematics_options(table: dict[str, Any]) -> None:
     if overlay and not isinstance(table.get("threat", False), bool):  # the threat-cue columns (OverlayKinematics)
         raise PydanticCustomError("bad_option", "must be true or false", {"key": "threat", "got": table["threat"]})
     count = table.get("vehicles_count", 5)
-    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-        raise PydanticCustomError("bad_option", "must be a whole number >= 1", {"key": "vehicles_count", "got": count})
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_OBSERVED:
+        raise PydanticCustomError("bad_option", f"must be a whole number from 1 to {MAX_OBSERVED} (the road holds at "
+                                  "most 501 vehicles; more rows are zeros)", {"key": "vehicles_count", "got": count})
     if table.get("order", "sorted") not in ("sorted", "shuffled"):
         raise PydanticCustomError("bad_option", "must be 'sorted' or 'shuffled'", {"key": "order", "got": table["order"]})
     features = table.get("features", ["presence"])

@@ -267,7 +267,8 @@ def test_settings_take_positional_values_as_the_dataclasses_did():
 
 
 @pytest.mark.parametrize("observation, must_contain", [
-    ({"type": "Kinematics", "vehicles_count": -1}, "highway.observation.vehicles_count = -1: must be a whole number >= 1"),
+    ({"type": "Kinematics", "vehicles_count": -1}, "highway.observation.vehicles_count = -1: must be a whole number from 1"),
+    ({"type": "Kinematics", "vehicles_count": 10**7}, "vehicles_count = 10000000: must be a whole number from 1 to 1000"),
     ({"type": "OverlayKinematics", "vehicles_count": 2.5}, "highway.observation.vehicles_count = 2.5"),
     ({"type": "Kinematics", "bogus": 1}, "highway.observation.bogus = 1: not a Kinematics option (allowed: type, features"),
     ({"vehicles_count": 3, "order": "random"}, "highway.observation.order = 'random': must be 'sorted' or 'shuffled'"),
