@@ -335,7 +335,7 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     alternate: dict[str, Any] = {}
     for text in args.alternate:
-        alternate = deep_merge(alternate, parse_override(text, "--alternate"), one_layer=True)
+        alternate = deep_merge(alternate, parse_override(text, "--alternate"))
     merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
     _weights_out(args, ".npz")
     with record, fitting:

@@ -957,27 +957,20 @@ def validate_section(section: type[_S], where: str, **values: Any) -> _S:
 
 
 # ----------------------------------------------------------------------------- merging
-def deep_merge(base: dict[str, Any], update: dict[str, Any], *, one_layer: bool = False,
-               _at: tuple[str, ...] = ()) -> dict[str, Any]:
+def deep_merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     """Merge ``update`` into a copy of ``base``, recursing into nested dicts.
 
     A table that names another ``type`` than the one below it (``highway.observation``) replaces it
-    whole: the options below were the other type's. A ``highway.observation`` or ``highway.action``
-    table below that names no type is its default type's (``Kinematics``, ``DiscreteMetaAction``).
+    whole: the options below were the other type's.
 
     :param base: the lower layer
     :param update: the higher layer (wins on conflicts)
-    :param one_layer: ``base`` and ``update`` are parts of one layer (the ``--set`` values of one
-        command): a table without a type there holds the options of the type named beside it, so it
-        is kept
     :return: a new dict
     """
     out = copy.deepcopy(base)
     for key, value in update.items():
-        below = out.get(key)
-        if isinstance(value, dict) and isinstance(below, dict) and not _another_type(
-                below, value, None if one_layer else _DEFAULT_TYPES.get((*_at, key))):
-            out[key] = deep_merge(below, value, one_layer=one_layer, _at=(*_at, key))
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and not _another_type(out[key], value):
+            out[key] = deep_merge(out[key], value)
         else:
             out[key] = copy.deepcopy(value)
     return out
@@ -987,20 +980,13 @@ _SHARED_OPTIONS = ({"Kinematics", "OverlayKinematics"}, {"ContinuousAction", "Di
 """Types that read the same options (but ``speed_range``, which DiscreteAction does not): a switch between
 them keeps the options set"""
 
-_DEFAULT_TYPES: dict[tuple[str, ...], str] = {
-    ("highway", name): HighwayConfig.model_fields[name].get_default(call_default_factory=True)["type"]
-    for name in ("observation", "action")}
-"""The type a ``highway.observation`` or ``highway.action`` table that names none stands for"""
 
-
-def _another_type(old: dict[str, Any], new: dict[str, Any], old_default: str | None = None) -> bool:
+def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
     """Whether ``new`` is a table of another ``type`` than ``old`` (an observation or action table): its
-    options were the old type's, so the new table replaces it whole. ``old`` without a type is of
-    ``old_default`` (None: unknown, kept)."""
-    old_type = old.get("type", old_default)
-    if not (isinstance(new.get("type"), str) and isinstance(old_type, str)) or new["type"] == old_type:
+    options were the old type's, so the new table replaces it whole."""
+    if not (isinstance(new.get("type"), str) and isinstance(old.get("type"), str)) or new["type"] == old["type"]:
         return False  # not both named (a bad name is refused by the validation that follows)
-    return not any(old_type in group and new["type"] in group for group in _SHARED_OPTIONS)
+    return not any(old["type"] in group and new["type"] in group for group in _SHARED_OPTIONS)
 
 
 def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
@@ -1018,7 +1004,7 @@ def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
         hw = out.get("highway", {})
         if not isinstance(hw, dict):
             raise ConfigError(f"highway must be a table of keys (got {hw!r})")
-        out["highway"] = deep_merge(hw, lifted, one_layer=True)
+        out["highway"] = deep_merge(hw, lifted)
     return out
 
 
@@ -1205,6 +1191,6 @@ def load_config(
         tree = deep_merge(tree, _lift_highway_keys(extra))
     layer: dict[str, Any] = {}  # the --set values as one layer: a type named after its options keeps them
     for text in overrides:
-        layer = deep_merge(layer, parse_override(text), one_layer=True)
+        layer = deep_merge(layer, parse_override(text))
     return validate(deep_merge(tree, layer))
 

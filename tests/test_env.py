@@ -438,33 +438,6 @@ def test_a_type_named_after_its_options_on_the_command_line_keeps_them(tmp_path)
                                  "highway.observation.type=Camera"])
     assert cfg.highway.observation == {"type": "Camera", "depth": True}  # the scenario's Kinematics options go
 
-
-def test_a_table_that_names_no_type_is_the_default_types(tmp_path):
-    from dt_highway.config import deep_merge, merge
-
-    scenario = tmp_path / "typeless.toml"  # no `type`: highway-env's Kinematics, our default
-    scenario.write_text('[highway.observation]\nvehicles_count = 7\nfeatures = ["presence", "x", "y"]\n'
-                        '[highway.action]\nlateral = false\n')
-    kinematics = {"vehicles_count": 7, "features": ["presence", "x", "y"]}
-    # another type: the Kinematics features are not taken as the grid's (they were refused or misread)
-    assert load_config(scenario, ["highway.observation.type=OccupancyGrid"]).highway.observation == {
-        "type": "OccupancyGrid"}
-    assert merge(load_config(scenario), {"observation": {"type": "OccupancyGrid"}}).highway.observation == {
-        "type": "OccupancyGrid"}
-    assert load_config(scenario, ["highway.action.type=ContinuousAction"]).highway.action == {
-        "type": "ContinuousAction"}
-    # the default type itself, or one that reads the same options: kept
-    assert load_config(scenario, ["highway.observation.type=OverlayKinematics"]).highway.observation == {
-        **kinematics, "type": "OverlayKinematics"}
-    assert load_config(scenario, ["highway.observation.vehicles_count=9"]).highway.observation == {
-        **kinematics, "vehicles_count": 9}
-    assert load_config(scenario, ["highway.action.type=DiscreteMetaAction"]).highway.action == {
-        "lateral": False, "type": "DiscreteMetaAction"}
-    # only highway-env's two tables have a default; within one layer, options wait for the type named beside them
-    assert deep_merge({"o": kinematics}, {"o": {"type": "OccupancyGrid"}})["o"] == {**kinematics, "type": "OccupancyGrid"}
-    assert deep_merge({"highway": {"observation": {"depth": True}}}, {"highway": {"observation": {"type": "Camera"}}},
-                      one_layer=True)["highway"]["observation"] == {"depth": True, "type": "Camera"}
-
 # ----------------------------------------------------------------------------- env.unwrapped.config, highway-env's way
 def test_editing_env_config_before_reset_is_validated_and_applied(small_config):
     env = _make(small_config)

@@ -76,7 +76,7 @@ def uplink_sweep_runs(sweep: tuple[tuple[str, str, tuple[float, ...]], ...]) -> 
         runs += [(name, v, dotted_tree(key, v)) for v in values]
     stress: dict[str, Any] = {}
     for key, v in UPLINK_STRESS.items():
-        stress = deep_merge(stress, dotted_tree(key, v), one_layer=True)
+        stress = deep_merge(stress, dotted_tree(key, v))
     runs.append(("latency_0.3s_at_1hz", "0.3 s, 1 Hz", stress))
     return runs
 
