@@ -1,8 +1,11 @@
 """The dt-highway-v0 env: registration, API checks, determinism, ids, info, memory."""
 
 import gc
+import json
+import shutil
 import sqlite3
 from contextlib import closing
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -10,8 +13,12 @@ import pytest
 
 import dt_highway  # noqa: F401
 from dt_highway.config import ConfigError, load_config
+from dt_highway.drivers.policy import load_policy
 from dt_highway.env import DTHighwayEnv
+from dt_highway.env.seat import DriverSeat
 from dt_highway.world.traffic import AGGRESSIVE, NORMAL
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _make(cfg, **kw):
@@ -373,6 +380,9 @@ def test_highway_env_types_with_good_options_are_made():
     ({"type": "Kinematics", "features": ["nope"]}, False, "cannot observe with type 'Kinematics'"),
     ({"type": "OccupancyGrid", "features": ["presence", "nope"]}, True, "'nope' is not a feature of type 'OccupancyGrid'"),
     ({"type": "OccupancyGrid", "features_range": {"nope": [0, 1]}}, True, "features_range: 'nope'"),
+    ({"type": "Kinematics", "features": ["nope", "x", "nah"]}, True, "'nope', 'nah' are not features of type"),
+    ({"type": "OverlayKinematics", "features": ["x", "marked"]}, True,
+     "features: 'marked' is a column type 'OverlayKinematics' adds itself: leave it out"),
 ])
 def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, says):
     # before: a KeyError traceback (our Kinematics), or a name left silently unused (an empty grid layer)
@@ -381,11 +391,37 @@ def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, s
                                                            "twin": {"preroll_s": 1}, "traffic": {"fast_road": fast_road}})
         env.reset(seed=0)
     for good in ({"type": "OccupancyGrid", "features": ["presence", "on_road", "vx"]},
-                 {"type": "Kinematics", "features": ["presence", "x", "cos_d"], "features_range": {"vx": [-5, 5]}}):
+                 {"type": "Kinematics", "features": ["presence", "x", "cos_d"], "features_range": {"vx": [-5, 5]}},
+                 {"type": "OverlayKinematics", "threat": True, "features_range": {"marked": [0, 1]}}):  # taken, unused
+        if good["type"] == "OverlayKinematics" and not fast_road:
+            continue
         env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": good, "duration": 1},
                                                            "twin": {"preroll_s": 1}, "traffic": {"fast_road": fast_road}})
         env.reset(seed=0)
         env.close()
+
+
+def test_the_twin_columns_are_not_feature_names_and_a_policys_unused_range_still_drives(tmp_path):
+    with pytest.raises(ConfigError, match="'twin_known' is a column type 'Kinematics' adds itself"):
+        env = gym.make("dt_highway:dt-highway-v0", config={
+            "highway": {"observation": {"features": ["presence", "twin_known"]}, "duration": 1},
+            "twin": {"preroll_s": 1, "in_observation": True}})
+        env.reset(seed=0)
+    src = ROOT / "agents" / "ppo-adas.zip"  # trained on OverlayKinematics
+    policy = tmp_path / "ranged.zip"
+    shutil.copy(src, policy)
+    meta = json.loads(src.with_suffix(".json").read_text())
+    meta["env_config"]["highway"]["observation"]["features_range"] = {"vxx": [0, 1]}  # unused, as highway-env drops it
+    policy.with_suffix(".json").write_text(json.dumps(meta))
+    env = DTHighwayEnv(config=load_config(str(ROOT / "envs/highway-trial.toml"), ["highway.duration=1",
+                                                                                   "twin.preroll_s=1"]).to_dict())
+    env.reset(seed=0)
+    assert DriverSeat(env, load_policy(policy).senses).perceive().observation is not None
+    meta["env_config"]["highway"]["observation"]["features"] = ["presence", "x", "y", "vx", "nope"]
+    policy.with_suffix(".json").write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match="policy ranged: its metadata's observation.features: 'nope' is not a"):
+        DriverSeat(env, load_policy(policy).senses).perceive()
+    env.close()
 
 
 def test_a_fault_of_ours_that_highway_env_calls_is_not_called_a_config_error(monkeypatch):

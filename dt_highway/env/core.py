@@ -417,8 +417,8 @@ class DTHighwayEnv(HighwayEnv):
                 obs, (KinematicObservation, OccupancyGridObservation)):
             return
         also = ("on_road",) if isinstance(obs, OccupancyGridObservation) else ()  # a layer the grid draws itself
-        check_feature_names(obs.features, obs.features_range, set(self.vehicle.to_dict()),
-                            str(self.config["observation"].get("type")), also)
+        check_feature_names("highway.observation", str(self.config["observation"].get("type")), obs.features,
+                            obs.features_range, set(self.vehicle.to_dict()), also)
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))

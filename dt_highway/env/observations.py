@@ -97,6 +97,7 @@ class TwinTaggedKinematics(_KinematicsPlus):
     EXTRA_FEATURES = ["twin_known", "twin_aggressive"]
     INTENT_FEATURES = ["twin_p_change", "twin_target_dlane"]
     """The intention columns (``twin.in_observation_intent``)"""
+    OWN_COLUMNS = (*EXTRA_FEATURES, *INTENT_FEATURES)
     GATE_M = 6.0
     """Largest distance between an observed vehicle and a twin position to associate them [m]"""
 
@@ -156,6 +157,8 @@ class OverlayKinematics(_KinematicsPlus):
     EXTRA_FEATURES = ["marked"]
     THREAT_FEATURES = ["cut_in_warned", "side"]
     """The columns of the threat cue (``threat = true``)"""
+    OWN_COLUMNS = (*EXTRA_FEATURES, *THREAT_FEATURES)
+    TYPE_NAME = "OverlayKinematics"
 
     def __init__(self, env: DTHighwayEnv, threat: bool = False, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)

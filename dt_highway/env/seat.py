@@ -82,6 +82,8 @@ def policy_observer(env: DTHighwayEnv, spec: ObservationSpec) -> FastKinematicOb
         elif spec.kind in ("Kinematics", "OverlayKinematics"):
             cls = OverlayKinematics if spec.kind == "OverlayKinematics" else FastKinematicObservation
             observer = cls(env, **options)
+            observer.names_from = f"policy {spec.policy}: its metadata's observation"
+            observer.check_ranges = False  # an unused range it was trained with does no harm
         else:
             raise ConfigError(f"policy {spec.policy}: unknown observation type {spec.kind!r} in its metadata")
     except (TypeError, ValueError) as err:

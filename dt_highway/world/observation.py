@@ -23,22 +23,37 @@ if TYPE_CHECKING:
     from highway_env.vehicle.objects import RoadObject
 
 
-def check_feature_names(features: list[str], features_range: dict[str, Any] | None, columns: set[str],
-                        type_name: str, also: tuple[str, ...] = ()) -> None:
+def check_feature_names(where: str, type_name: str, features: list[str], features_range: dict[str, Any] | None,
+                        columns: set[str], also: tuple[str, ...] = (), own: tuple[str, ...] = ()) -> None:
     """Refuse ``features`` and ``features_range`` keys that no vehicle row has: highway-env leaves an
     unknown ``features_range`` key (and ``OccupancyGrid`` an unknown feature) silently unused.
 
-    :param columns: the keys of the vehicles' ``to_dict()`` rows
+    :param where: the table's dotted key, for the message (``highway.observation``)
     :param type_name: the observation type, for the message
+    :param features: the features read from the rows
+    :param features_range: its normalisation ranges (None: not checked)
+    :param columns: the keys of the vehicles' ``to_dict()`` rows
     :param also: names the type reads beside the rows' columns (``OccupancyGrid``'s ``on_road``)
+    :param own: columns the type adds itself (``OverlayKinematics``' ``marked``): not a feature to
+        name, a range for them is taken (and unused)
     :raises ConfigError: one line naming the unknown names and the known ones
     """
+    named_own = [name for name in features if name in own]
+    if named_own:
+        raise ConfigError(f"{where}.features: {_names(named_own)} {'is a column' if len(named_own) == 1 else 'are columns'} "
+                          f"type '{type_name}' adds itself: leave {'it' if len(named_own) == 1 else 'them'} out")
     known = columns | set(also)
-    for key, names in (("features", list(features)), ("features_range", list(features_range or {}))):
-        unknown = [name for name in names if name not in known]
+    for key, names, allowed in (("features", list(features), known),
+                                ("features_range", list(features_range or {}), known | set(own))):
+        unknown = [name for name in names if name not in allowed]
         if unknown:
-            raise ConfigError(f"highway.observation.{key}: {', '.join(map(repr, unknown))} is not a feature of type "
-                              f"'{type_name}' (its features: {', '.join(sorted(known))})")
+            what = "is not a feature" if len(unknown) == 1 else "are not features"
+            raise ConfigError(f"{where}.{key}: {_names(unknown)} {what} of type '{type_name}' "
+                              f"(its features: {', '.join(sorted(known))})")
+
+
+def _names(names: list[str]) -> str:
+    return ", ".join(map(repr, names))
 
 
 class FastKinematicObservation(KinematicObservation):
@@ -49,10 +64,19 @@ class FastKinematicObservation(KinematicObservation):
         not a column of the vehicles' ``to_dict()`` rows
     """
 
+    TYPE_NAME = "Kinematics"
+    """The ``type`` this observation is made from, for messages"""
+    OWN_COLUMNS: tuple[str, ...] = ()
+    """Columns the observation may add to the rows' features itself (its subclasses')"""
+
     def __init__(self, env: AbstractEnv, **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if len(set(self.features)) != len(self.features):
             raise ValueError(f"observation features must be distinct names (got {self.features})")
+        self.names_from = "highway.observation"
+        """Where the feature names come from, for the message of a name no row has"""
+        self.check_ranges = True
+        """Whether a ``features_range`` key no row has is refused (a policy's trained observation: not)"""
         self._names_checked = False
 
     def observed(self) -> list[RoadObject]:
@@ -76,8 +100,9 @@ class FastKinematicObservation(KinematicObservation):
         # one column per feature, as pandas builds it from the records (a key some rows lack is
         # NaN there; one that no row has is pandas' KeyError, a configuration error here)
         if not self._names_checked:
-            check_feature_names(self.features, self.features_range, set().union(*records),
-                                self.env.config["observation"].get("type", "Kinematics"))
+            check_feature_names(self.names_from, self.TYPE_NAME, self.features,
+                                self.features_range if self.check_ranges else None, set().union(*records),
+                                own=self.OWN_COLUMNS)
             self._names_checked = True
         columns = {f: np.array([r.get(f, np.nan) for r in records]) for f in self.features}
         if self.normalize:
