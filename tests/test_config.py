@@ -285,6 +285,7 @@ def test_kinematics_options_are_checked_when_configured(observation, must_contai
     fine = {"type": "Kinematics", "vehicles_count": 7, "see_behind": True, "order": "shuffled", "features": ["presence", "x"],
             "features_range": {"x": [-100, 100]}, "normalize": False}
     validate({"highway": {"observation": fine}})
+    validate({"highway": {"observation": {**fine, "vehicles_count": 1000}}})  # the most rows taken
 
 
 def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader():
