@@ -382,7 +382,7 @@ def test_highway_env_types_with_good_options_are_made():
     ({"type": "OccupancyGrid", "features_range": {"nope": [0, 1]}}, True, "features_range: 'nope'"),
     ({"type": "Kinematics", "features": ["nope", "x", "nah"]}, True, "'nope', 'nah' are not features of type"),
     ({"type": "OverlayKinematics", "features": ["x", "marked"]}, True,
-     "features: 'marked' is a column type 'OverlayKinematics' adds itself: leave it out"),
+     "features: 'marked' is a column the observation adds itself \\(type 'OverlayKinematics'\\): leave it out"),
 ])
 def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, says):
     # before: a KeyError traceback (our Kinematics), or a name left silently unused (an empty grid layer)
@@ -402,7 +402,7 @@ def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, s
 
 
 def test_the_twin_columns_are_not_feature_names_and_a_policys_unused_range_still_drives(tmp_path):
-    with pytest.raises(ConfigError, match="'twin_known' is a column type 'Kinematics' adds itself"):
+    with pytest.raises(ConfigError, match="'twin_known' is a column the observation adds itself"):
         env = gym.make("dt_highway:dt-highway-v0", config={
             "highway": {"observation": {"features": ["presence", "twin_known"]}, "duration": 1},
             "twin": {"preroll_s": 1, "in_observation": True}})

@@ -40,8 +40,9 @@ def check_feature_names(where: str, type_name: str, features: list[str], feature
     """
     named_own = [name for name in features if name in own]
     if named_own:
-        raise ConfigError(f"{where}.features: {_names(named_own)} {'is a column' if len(named_own) == 1 else 'are columns'} "
-                          f"type '{type_name}' adds itself: leave {'it' if len(named_own) == 1 else 'them'} out")
+        one = len(named_own) == 1
+        raise ConfigError(f"{where}.features: {_names(named_own)} {'is a column' if one else 'are columns'} the "
+                          f"observation adds itself (type '{type_name}'): leave {'it' if one else 'them'} out")
     known = columns | set(also)
     for key, names, allowed in (("features", list(features), known),
                                 ("features_range", list(features_range or {}), known | set(own))):
