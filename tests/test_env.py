@@ -401,6 +401,28 @@ def test_feature_names_no_vehicle_row_has_are_one_line(observation, fast_road, s
         env.close()
 
 
+@pytest.mark.parametrize("observation, says", [
+    ({"type": "TupleObservation", "observation_configs": [
+        {"type": "Kinematics"}, {"type": "OccupancyGrid", "features": ["presence", "nope"]}]},
+     r"highway.observation.observation_configs\[1\].features: 'nope' is not a feature of type 'OccupancyGrid'"),
+    ({"type": "MultiAgentObservation", "observation_config": {"type": "Kinematics", "features_range": {"vxx": [0, 1]}}},
+     "highway.observation.observation_config.features_range: 'vxx' is not a feature of type 'Kinematics'"),
+])
+def test_feature_names_in_nested_highway_env_tables_are_checked(observation, says):
+    # before: the grid layer and the range were left silently unused
+    with pytest.raises(ConfigError, match=says):
+        env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": observation, "duration": 1},
+                                                           "twin": {"preroll_s": 1}})
+        env.reset(seed=0)
+    good = {"type": "TupleObservation", "observation_configs": [
+        {"type": "Kinematics", "features_range": {"vx": [-5, 5]}}, {"type": "OccupancyGrid", "features": ["on_road"]}]}
+    env = gym.make("dt_highway:dt-highway-v0", config={"highway": {"observation": good, "duration": 1},
+                                                       "twin": {"preroll_s": 1}})
+    obs, _ = env.reset(seed=0)
+    assert len(obs) == 2
+    env.close()
+
+
 def test_the_twin_columns_are_not_feature_names_and_a_policys_unused_range_still_drives(tmp_path):
     with pytest.raises(ConfigError, match="'twin_known' is a column the observation adds itself"):
         env = gym.make("dt_highway:dt-highway-v0", config={

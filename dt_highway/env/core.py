@@ -25,14 +25,21 @@ import os
 import site
 import sysconfig
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 import numpy as np
 from highway_env.envs.common.action import action_factory
-from highway_env.envs.common.observation import KinematicObservation, OccupancyGridObservation, observation_factory
+from highway_env.envs.common.observation import (
+    KinematicObservation,
+    MultiAgentObservation,
+    ObservationType,
+    OccupancyGridObservation,
+    TupleObservation,
+    observation_factory,
+)
 from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.lane import StraightLane
 from highway_env.road.road import Road, RoadNetwork
@@ -172,6 +179,20 @@ def _speeds_ok(speeds: Any) -> bool:
 def _highway_env_says(err: BaseException) -> str:
     """The end of a one-line error about highway-env's options: what it raised, on one line."""
     return f"({type(err).__name__}: {' '.join(str(err).split())}); its options are in highway-env's documentation"
+
+
+def _observation_leaves(where: str, table: dict[str, Any],
+                        obs: ObservationType) -> Iterator[tuple[str, dict[str, Any], ObservationType]]:
+    """highway-env's observation and those nested in its multi-agent and tuple types, each with its table
+    and dotted key (``highway.observation.observation_configs[1]``)."""
+    if isinstance(obs, MultiAgentObservation):  # every agent's observation is made from the one table
+        for agent in obs.agents_observation_types[:1]:
+            yield from _observation_leaves(f"{where}.observation_config", table.get("observation_config", {}), agent)
+    elif isinstance(obs, TupleObservation):
+        for i, (sub, part) in enumerate(zip(table.get("observation_configs", []), obs.observation_types, strict=False)):
+            yield from _observation_leaves(f"{where}.observation_configs[{i}]", sub, part)
+    else:
+        yield where, table, obs
 
 
 def _with_tuples(table: dict[str, Any]) -> dict[str, Any]:
@@ -411,14 +432,16 @@ class DTHighwayEnv(HighwayEnv):
 
     def _check_highway_env_features(self) -> None:
         """Refuse feature names highway-env's own Kinematics and OccupancyGrid would leave unused (an unknown
-        ``features_range`` key; an OccupancyGrid feature): our Kinematics checks its own at its first observation."""
-        obs = self.observation_type
-        if getattr(self, "_highway_env_observation", None) is None or self.vehicle is None or not isinstance(
-                obs, (KinematicObservation, OccupancyGridObservation)):
+        ``features_range`` key; an OccupancyGrid feature), those nested in its multi-agent and tuple types
+        included: our Kinematics checks its own at its first observation."""
+        table = getattr(self, "_highway_env_observation", None)
+        if table is None or self.vehicle is None:
             return
-        also = ("on_road",) if isinstance(obs, OccupancyGridObservation) else ()  # a layer the grid draws itself
-        check_feature_names("highway.observation", str(self.config["observation"].get("type")), obs.features,
-                            obs.features_range, set(self.vehicle.to_dict()), also)
+        columns = set(self.vehicle.to_dict())
+        for where, sub, obs in _observation_leaves("highway.observation", table, self.observation_type):
+            if isinstance(obs, (KinematicObservation, OccupancyGridObservation)):
+                also = ("on_road",) if isinstance(obs, OccupancyGridObservation) else ()  # a layer the grid draws
+                check_feature_names(where, str(sub.get("type")), obs.features, obs.features_range, columns, also)
 
     def _component_rngs(self) -> dict[str, np.random.Generator]:
         seed = int(self.np_random.integers(2**63 - 1))
