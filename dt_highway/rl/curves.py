@@ -102,6 +102,8 @@ def plot_curve(curve: pd.DataFrame, title: str, png: str | Path) -> None:
     top.set_title(title)
     bottom.bar(evals["timesteps"] / 1000, evals["eval_collision_rate"], width=max(1.0, float(steps.max()) / 60),
                color="#d94801")
+    bottom.plot(evals["timesteps"] / 1000, evals["eval_collision_rate"], "o", color="#d94801", ms=4,
+                clip_on=False)  # a rate of 0 shows as a dot on the axis, not as nothing
     bottom.set_ylim(0, 1)
     bottom.set_ylabel("eval collision rate")
     bottom.set_xlabel("env steps [thousands]")
