@@ -486,7 +486,7 @@ class TrainConfig(BaseModel):
     """What ``dt-highway train`` trains: an RL training file (``agents/<name>.toml``, ``kind = "rl"``).
 
     A training file names the algorithm, the observation setting and the scenario; everything
-    left out keeps the defaults below. Example (``agents/ppo-baseline.toml``)::
+    left out keeps the defaults below. A short example (the shipped ones are in ``agents/``)::
 
         kind = "rl"
         algorithm = "PPO"
