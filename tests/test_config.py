@@ -95,7 +95,7 @@ def test_the_documented_relative_paths_work_from_any_folder(tmp_path, monkeypatc
     assert load_config("envs/highway-trial.toml") == load_config(CHECKOUT / "envs" / "highway-trial.toml")
     assert load_driver("agents/human.toml").name == "human" and load_driver("idm.toml").name == "idm"
     train = load_train_config("agents/ppo-baseline.toml")
-    load_config(train.scenario)  # the scenario it names (envs/highway-trial.toml) is found too
+    load_config(train.scenario)  # the scenario it names (envs/highway-trial-v1.toml) is found too
     with pytest.raises(ConfigError, match=r"scenario file 'envs/nope.toml' does not exist"):
         load_config("envs/nope.toml")  # a name the checkout has not either: the message names what was typed
     for typo in ("emvs/highway-trial.toml", "../envs/highway-trial.toml"):  # another folder: no silent stand-in

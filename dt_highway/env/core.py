@@ -424,6 +424,8 @@ class DTHighwayEnv(HighwayEnv):
             table = getattr(self, "_highway_env_observation", None)
             if table is None or not _highway_env_fault(err, through=HIGHWAY_ENV_OBSERVATIONS):
                 raise
+            if isinstance(err, KeyError):  # a features name no row has (a nested table's too): say which
+                self._check_highway_env_features()
             options = {k: v for k, v in table.items() if k != "type"}
             raise ConfigError(f"highway.observation: highway-env cannot observe with type '{table.get('type')}' and "
                               f"{options or 'no options'} " + _highway_env_says(err)) from None
