@@ -1,3 +1,9 @@
+"""Shared settings of the test suite.
+
+The suite runs on 2 pytest-xdist workers (``addopts`` in ``pyproject.toml``); ``python -m pytest -n 0`` runs it in
+one process. How the tests are shared out is :func:`pytest_xdist_make_scheduler` below.
+"""
+
 import os
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -30,3 +36,34 @@ def numba_interrupt() -> SystemError:
             raise SystemError("CPUDispatcher(<function _perspective>) returned a result with an exception set") from ki
     except SystemError as err:
         return err
+
+
+#: tests that measure wall time (a pause, a window close, Ctrl-C answered within seconds) or run studies and keyboard
+#: sessions in other processes (process pools, a local Ray): one worker runs them one after another, so two of them
+#: never share the 2 cores (the other worker runs the rest meanwhile)
+WALL_CLOCK = ("tests/test_interrupt.py::", "tests/test_drive_trial.py::", "tests/test_drive.py::",
+              "tests/test_session_flow.py::", "tests/test_study.py::test_the_ray_backend_runs_the_same_trials_on_a_local_ray")
+#: files whose tests share one costly module fixture (a calibration run, a keyboard trial): one worker runs each whole
+WHOLE_FILE = ("tests/test_calibration.py::", "tests/test_replay.py::")
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: without pytest-xdist, unused
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """Under ``--dist load`` (``-n 2``'s default), the tests are shared out one by one as there, except that the tests of
+    :data:`WALL_CLOCK` form one unit of work, and each file of :data:`WHOLE_FILE` another; any other ``--dist`` is left
+    to pytest-xdist.
+
+    Not ``xdist_group`` marks with ``--dist loadgroup``: pytest-xdist 3.8 puts the group into ``item._nodeid``, which
+    pytest 9.2 no longer reads, so the marks are silently ignored there (checked on 2026-11-28).
+    """
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class _Units(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            if nodeid.startswith(WALL_CLOCK):
+                return "wall_clock"
+            return next((f for f in WHOLE_FILE if nodeid.startswith(f)), nodeid)
+
+    return _Units(config, log)
