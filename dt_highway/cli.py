@@ -33,11 +33,11 @@ from dt_highway.bench import (
     bench_sim,
     bench_train,
 )
-from dt_highway.conditions import CONDITIONS, condition_config
+from dt_highway.conditions import CONDITIONS, check_driver_action, condition_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
-from dt_highway.evaluation.calibration import calibrate, calibration_table, markdown
+from dt_highway.evaluation.calibration import calibrate, calibration_table, check_values, markdown
 from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
 from dt_highway.evaluation.frames import record_frames
 from dt_highway.evaluation.intent import (
@@ -440,6 +440,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     value_list = [v.strip() for v in values.split(",") if v.strip()]
     _check_once(value_list, "--knob", "value", key=lambda v: _knob_value(key.strip(), v))  # 2 and 2.0 alike
     scenario = find_file_or_default(args.scenario)
+    check_values(key.strip(), value_list, scenario, args.overrides)  # one line, before the bar
     total = len(drivers) * len(value_list) * args.trials
     with _progress(total, "calibrate", args.quiet, unit="trial") as bar:
         cells = calibrate(key.strip(), value_list, drivers, args.out, args.trials, args.seed, scenario,
@@ -497,6 +498,9 @@ def cmd_study(args: argparse.Namespace) -> int:
     # bad driver files and configurations fail here, once, rather than in every trial
     drv = load_driver(driver)
     load_config(scenario, overrides)
+    for condition in conditions:  # a --set highway.action.type no driver can take
+        check_driver_action(load_config(scenario, overrides, deep_merge(condition_config(condition),
+                                                                          drv.config_overrides())))
     if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
         for condition in conditions:
             cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))

@@ -20,9 +20,10 @@ shown as ``adas`` (the placebo is blind), as are the named modes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
-from dt_highway.config import ConfigError
+from dt_highway.config import ConfigError, DTConfig
 
 CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
 """Every condition a study or a keyboard session can run"""
@@ -80,3 +81,23 @@ def condition_config(condition: str) -> dict[str, Any]:
     if overlay:
         out["overlay"] = overlay
     return out
+
+
+def check_driver_action(config: DTConfig | Mapping[str, Any]) -> None:
+    """Refuse, in one line, a configuration whose ego does not take the ``Driver`` action: every driver
+    (scripted, a trained policy through its menu, the keyboard) answers with ``[acceleration, lane
+    request]``, and each condition sets that action, so only a ``--set highway.action.type=...`` can
+    change it.
+
+    :param config: the configuration of a driver's trial or episode (a :class:`~dt_highway.config.DTConfig`
+        or the env's flat ``config``)
+    :raises ConfigError: naming the action type found
+    """
+    if isinstance(config, DTConfig):
+        action = config.highway.action
+    else:
+        action = config.get("action", {})
+    kind = action.get("type") if isinstance(action, Mapping) else None
+    if kind != "Driver":
+        raise ConfigError(f"highway.action.type = {kind}: drivers act through the Driver action ([acceleration, "
+                          "lane request]), which every condition sets; leave highway.action.type out of --set")

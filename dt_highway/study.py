@@ -39,7 +39,7 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
-from dt_highway.conditions import condition_config
+from dt_highway.conditions import check_driver_action, condition_config
 from dt_highway.config import ConfigError, deep_merge, find_file, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
@@ -179,6 +179,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         driver = load_driver(spec.driver)
         cfg = load_config(spec.scenario, list(spec.overrides),
                           deep_merge(condition_config(spec.condition), driver.config_overrides()))
+        check_driver_action(cfg)
     except ConfigError as err:
         return {"status": "failed", "directory": str(out), "error": str(err)}
     meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(),

@@ -129,6 +129,10 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--scenario", str(bad), "--quiet"), "not valid TOML")
 
 
+ACTION = "highway.action.type = DiscreteMetaAction: drivers act through the Driver action"
+DMA = ("--set", "highway.action.type=DiscreteMetaAction")
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["evaluate", "--driver", "agents/idm.toml", "--episodes-json"], "--episodes-json needs --json"),
     (["study", "--quick", "--ray-address", "auto"], "--ray-address needs --backend ray"),
@@ -141,10 +145,16 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
      "--drivers names two files called 'human' (agents/human.toml, other/human.toml)"),
     (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/idm.toml,idm.toml"],
      "--drivers names the driver file 'idm.toml' twice"),
+    # an action no driver gives: was a traceback (evaluate, rl-compare) or every trial failing (study, calibrate)
+    (["evaluate", "--driver", "agents/idm.toml", "--episodes", "1", *DMA], ACTION),
+    (["rl-compare", "--rows", "idm.toml@adas", "--episodes", "1", *DMA], ACTION),
+    (["study", "--driver", "agents/ppo-adas.zip", "--trials", "1", *DMA], ACTION),
+    (["calibrate", "--knob", "traffic.dangerous.brake_mps2=2", "--drivers", "agents/idm.toml", *DMA], ACTION),
+    (["calibrate", "--knob", "highway.action.type=Driver,DiscreteMetaAction", "--drivers", "agents/idm.toml"], ACTION),
 ])
 def test_options_that_would_be_ignored_or_run_twice_are_refused(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(Path(__file__).resolve().parents[1])  # the shipped agents/
-    out = ["--out", str(tmp_path / "o")] if args[0] in ("study", "calibrate") else []
+    out = ["--out", str(tmp_path / "o")] if args[0] in ("study", "calibrate", "rl-compare") else []
     assert main([*args, *out]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err  # the one line alone: no progress bar before it

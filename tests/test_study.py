@@ -134,3 +134,13 @@ def test_a_study_runs_on_copies_of_its_inputs_and_refuses_changed_ones(tmp_path)
     assert freeze_inputs(out, d, sc) == (d, sc)  # the copies themselves are accepted
     with pytest.raises(ConfigError, match="file not found"):
         freeze_inputs(out, str(tmp_path / "nope.toml"), None)
+
+
+def test_a_trial_whose_action_no_driver_gives_fails_in_one_line(tmp_path):
+    """A ``--set highway.action.type`` reaches a trial run from Python too: it fails with the reason, unrun."""
+    from dt_highway.study import TrialSpec, run_trial
+
+    spec = TrialSpec(str(tmp_path / "t"), "agents/idm.toml", "adas", 0, 0, None, ("highway.action.type=DiscreteMetaAction",))
+    result = run_trial(spec)
+    assert result["status"] == "failed" and not (tmp_path / "t" / "steps.csv").exists()
+    assert result["error"].startswith("highway.action.type = DiscreteMetaAction: drivers act through the Driver action")

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from dt_highway.conditions import check_driver_action, condition_config
 from dt_highway.config import ConfigError, load_config
 from dt_highway.metrics.safety import TTC_CAP_S, cut_in_outcomes
 from dt_highway.metrics.trial_log import Trial, load_trial
@@ -100,6 +101,18 @@ def baseline_figures(trials: Sequence[Trial]) -> dict[str, float]:
     return out
 
 
+def check_values(knob: str, values: Sequence[str], scenario: str | None, overrides: Sequence[str]) -> None:
+    """Refuse, before any trial runs, a knob or value the configuration refuses, or a configuration no
+    driver can drive (:func:`~dt_highway.conditions.check_driver_action`).
+
+    :raises ConfigError: one line
+    """
+    if not values:
+        raise ConfigError("calibrate needs at least one value")
+    for v in values:
+        check_driver_action(load_config(scenario, [*overrides, f"{knob}={v}"], condition_config("baseline")))
+
+
 def calibrate(
     knob: str,
     values: Sequence[str],
@@ -128,10 +141,7 @@ def calibrate(
     :return: one cell per (driver, value), drivers outermost
     :raises ConfigError: on a knob or value the configuration refuses (before any trial runs)
     """
-    if not values:
-        raise ConfigError("calibrate needs at least one value")
-    for v in values:  # refuse a bad key or value before any trial runs
-        load_config(scenario, [*overrides, f"{knob}={v}"])
+    check_values(knob, values, scenario, overrides)
     cells = []
     for driver in drivers:
         for v in values:

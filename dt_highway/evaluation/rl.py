@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from dt_highway.conditions import CONDITIONS, condition_config
+from dt_highway.conditions import CONDITIONS, check_driver_action, condition_config
 from dt_highway.config import ConfigError, deep_merge, load_config
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.drivers.policy import PolicyDriver
@@ -96,6 +96,7 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
         raise ConfigError(f"--episodes must be >= 1 (got {episodes})")
     driver = driver if driver is not None else load_driver(driver_path)
     cfg = load_config(scenario, list(overrides), deep_merge(condition_config(condition), driver.config_overrides()))
+    check_driver_action(cfg)
     env = gym.make("dt-highway-v0", config=cfg.to_dict())
     rows = []
     try:
@@ -241,6 +242,7 @@ class _RowRunner:
         self.row, self.driver = row, row_driver(row)
         cfg = load_config(scenario, list(overrides), deep_merge(condition_config(row.condition),
                                                                 self.driver.config_overrides()))
+        check_driver_action(cfg)
         self.env = gym.make("dt-highway-v0", config=cfg.to_dict())
         if hasattr(self.driver, "model"):  # a policy that cannot drive this env says so before any episode
             DriverSeat(self.env.unwrapped, self.driver.senses)
