@@ -51,7 +51,15 @@ from dt_highway.evaluation.intent import (
 from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, PICTURE_REVEALABLE, STARTS, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
 from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
-from dt_highway.evaluation.rl import COMPARE_SCENARIO, COMPARE_SEED, markdown_table, parse_rows, rl_compare, write_compare
+from dt_highway.evaluation.rl import (
+    COMPARE_SCENARIO,
+    COMPARE_SEED,
+    compare_paths,
+    markdown_table,
+    parse_rows,
+    rl_compare,
+    write_compare,
+)
 from dt_highway.evaluation.rl import evaluate as evaluate_driver
 from dt_highway.evaluation.tagger_train import train_tagger, training_steps
 from dt_highway.evaluation.twin import episode_steps, evaluate_twin
@@ -980,6 +988,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_rl_compare(args: argparse.Namespace) -> int:
     """Rows of driver x condition (x ablation) on the same held-out seeds, with paired tests (issue 22)."""
     rows = parse_rows(args.rows)  # a bad row: one line, before any env
+    held = [p.name for p in compare_paths(args.out) if p.exists()]
+    if held and not args.force:  # an earlier comparison (hours of episodes) is not replaced unasked
+        raise ConfigError(f"{args.out} holds an earlier comparison ({', '.join(held)}): pass --force to replace it, "
+                          "or another --out")
     scenario = args.scenario or COMPARE_SCENARIO
     load_config(scenario, args.overrides)
     bars: list[tqdm] = []  # the bar appears once every row's driver and env were accepted
@@ -1326,6 +1338,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive(int, "--workers"), default=1, help="parallel episodes (default 1)")
     p.add_argument("--out", default="runs/rl-compare",
                    help="folder for compare.json, compare.md and episodes.csv (default runs/rl-compare)")
+    p.add_argument("--force", action="store_true", help="replace the comparison --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_rl_compare)
 

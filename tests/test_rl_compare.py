@@ -162,3 +162,13 @@ def test_a_tiny_run_prints_the_table_and_writes_the_files(tmp_path, capsys, monk
         ("ppo-adas.zip@adas", "10000"), ("ppo-adas.zip@adas", "10001"),
         ("ppo-adas.zip@adas:zero-marks", "10000"), ("ppo-adas.zip@adas:zero-marks", "10001")]
     assert (out / "compare.md").read_text() in printed
+    # a second comparison into the same folder is refused before any episode, the first kept; --force replaces it
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    again = ["rl-compare", "--rows", "idm.toml@baseline", "--episodes", "1", *SHORT, "--out", str(out), "--quiet"]
+    assert main(again) == 2
+    err = capsys.readouterr().err
+    said = f"{out} holds an earlier comparison (compare.json, compare.md, episodes.csv): pass --force to replace it"
+    assert err.count("\n") == 1 and said in err, err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert main([*again, "--force"]) == 0
+    assert list(json.loads((out / "compare.json").read_text())["rows"]) == ["idm.toml@baseline"]

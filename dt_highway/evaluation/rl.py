@@ -483,6 +483,11 @@ EPISODE_COLUMNS = ("row", "driver", "condition", "ablation", "seed", "return", "
 """The episodes CSV's first columns (every other metric of the episode follows)"""
 
 
+def compare_paths(out: str | Path) -> list[Path]:
+    """The files :func:`write_compare` writes into the folder ``out``."""
+    return [Path(out) / name for name in ("compare.json", "compare.md", "episodes.csv")]
+
+
 def write_compare(result: dict[str, Any], out: str | Path) -> list[Path]:
     """Write ``compare.json`` (everything), ``compare.md`` (:func:`markdown_table`) and ``episodes.csv``
     (one line per episode; ``cut_in_ttcs_s`` joined by ``;``) into the folder ``out``.
@@ -495,7 +500,7 @@ def write_compare(result: dict[str, Any], out: str | Path) -> list[Path]:
     frame["cut_in_ttcs_s"] = frame["cut_in_ttcs_s"].map(lambda vs: ";".join(f"{v:.3f}" for v in vs))
     first = [c for c in EPISODE_COLUMNS if c in frame]
     frame = frame[first + [c for c in frame.columns if c not in first]]
-    paths = [folder / "compare.json", folder / "compare.md", folder / "episodes.csv"]
+    paths = compare_paths(folder)
     paths[0].write_text(dump_json(result) + "\n", encoding="utf-8")
     paths[1].write_text(markdown_table(result), encoding="utf-8")
     frame.to_csv(paths[2], index=False)
