@@ -868,6 +868,9 @@ class DTConfig(_Section):
             raise ValueError("fusion.enabled = true needs camera.enabled = true")
         if self.fusion.enabled and not self.twin.enabled:
             raise ValueError("fusion.enabled = true needs twin.enabled = true")
+        if self.fusion.enabled and self.overlay.mode != "type" and not self.twin.intention.enabled:
+            raise ValueError(f"overlay.mode = {self.overlay.mode!r} needs twin.intention.enabled = true (its threat marks "
+                             "read the twin's lane-change intention; without it none would show)")
         return self
 
     def to_dict(self) -> dict[str, Any]:

@@ -223,3 +223,15 @@ def test_overlay_settings_are_checked():
         load_config(None, ["overlay.max_marks=0"])
     with pytest.raises(ConfigError, match=r"overlay\.threshold"):
         load_config(None, ["overlay.threshold=1.5"])
+
+
+@pytest.mark.parametrize("mode", ["threat", "both"])
+def test_a_threat_overlay_without_the_twins_intention_is_refused(mode):
+    """It ran, marking nothing (0 marks in 600 steps where the intention gave 45), and its sham with it."""
+    shown = ["camera.enabled=true", "fusion.enabled=true", f"overlay.mode={mode}"]
+    with pytest.raises(ConfigError, match=rf"^invalid configuration: overlay.mode = '{mode}' needs twin.intention.enabled"):
+        load_config(None, [*shown, "twin.intention.enabled=false"])
+    assert load_config(None, shown).twin.intention.enabled  # with the intention: taken
+    assert load_config(None, [*shown, "overlay.mode=type", "twin.intention.enabled=false"]).overlay.mode == "type"
+    # nothing shown (the baseline condition): the mode is not read, so not refused
+    assert load_config(None, [f"overlay.mode={mode}", "twin.intention.enabled=false"]).overlay.mode == mode
