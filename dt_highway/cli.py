@@ -33,7 +33,7 @@ from dt_highway.bench import (
     bench_sim,
     bench_train,
 )
-from dt_highway.conditions import CONDITIONS, check_driver_action, condition_config
+from dt_highway.conditions import CONDITIONS, check_driver_action, check_mode_override, condition_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
@@ -628,6 +628,7 @@ def cmd_session(args: argparse.Namespace) -> int:
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     order = condition_order(base.participant, conditions)
+    check_mode_override(order, base.overrides)
     protocol = load_protocol(args.protocol)
     answers = Path(args.answers_from) if args.answers_from else None
     print(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice {', '.join(order)}, "

@@ -11,8 +11,8 @@
   named, so that one study can hold ``adas-type``, ``adas-threat`` and the sham of either.
 
 Every condition drives the ego through the ``Driver`` action. A condition's settings sit above the
-scenario file and below ``--set`` (:func:`~dt_highway.config.load_config`): ``--set overlay.mode=...``
-would override ``adas-type``'s mode too.
+scenario file and below ``--set`` (:func:`~dt_highway.config.load_config`); a ``--set overlay.mode=...``
+beside a condition that names its mode is refused (:func:`check_mode_override`).
 
 What a participant is told (:func:`display_name`): ``baseline`` or ``adas``; a sham condition is
 shown as ``adas`` (the placebo is blind), as are the named modes.
@@ -20,7 +20,7 @@ shown as ``adas`` (the placebo is blind), as are the named modes.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from dt_highway.config import ConfigError, DTConfig
@@ -81,6 +81,21 @@ def condition_config(condition: str) -> dict[str, Any]:
     if overlay:
         out["overlay"] = overlay
     return out
+
+
+def check_mode_override(conditions: Sequence[str], overrides: Sequence[str]) -> None:
+    """Refuse a ``--set overlay.mode=...`` beside a condition that names its mode (``adas-type``,
+    ``sham-threat``...): the ``--set`` would win, and the condition's trials would be labelled with a
+    mode they did not show.
+
+    :param conditions: the study's or session's conditions
+    :param overrides: its ``dotted.key=value`` strings
+    :raises ConfigError: one line naming the condition
+    """
+    named = [c for c in conditions if c in _MODE]
+    if named and any(str(o).partition("=")[0].strip() == "overlay.mode" for o in overrides):
+        raise ConfigError(f"--set overlay.mode would override the mode {named[0]} names: drop it (adas and sham "
+                          "take overlay.mode; the named conditions set their own)")
 
 
 def check_driver_action(config: DTConfig | Mapping[str, Any]) -> None:

@@ -39,7 +39,7 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
-from dt_highway.conditions import check_driver_action, condition_config
+from dt_highway.conditions import check_driver_action, check_mode_override, condition_config
 from dt_highway.config import ConfigError, deep_merge, find_file, load_config
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
@@ -253,6 +253,7 @@ def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, s
     trials, seed = int(trials), int(seed)  # numpy integers too
     for c in conditions:
         condition_config(c)
+    check_mode_override(conditions, overrides)
     if len(set(conditions)) != len(conditions) or not conditions:
         raise ConfigError(f"--conditions must name each condition once (got {','.join(conditions) or 'none'})")
     if trials < 1:

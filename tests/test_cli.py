@@ -105,6 +105,8 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--set", "twin.enabled=false", "--quiet"), "twin.enabled")
     _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")
     _one_line_error(_cli("twin-eval", "--seed", "-1"), "argument --seed: a seed must be >= 0 (got -1)")
+    _one_line_error(_cli("train-chase", "--set", "twin.intention.enabled=false", "--out", str(tmp_path / "c.npz"),
+                         "--quiet"), "twin-eval --intent, train-intent and train-chase need twin.intention.enabled = true")
     _one_line_error(_cli("train-chase", "--test-seed", "-1", "--out", "x.npz"), "argument --test-seed: a seed must be >= 0")
     _one_line_error(_cli("train-intent", "--alternate", "foo", "--out", str(tmp_path / "a.npz"), "--quiet"),
                     "--alternate expects dotted.key=value")

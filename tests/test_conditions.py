@@ -121,3 +121,20 @@ def test_a_keyboard_session_can_include_the_sham(tmp_path, capsys):
     sham = load_trial(out / "trials" / "P02-sham")
     assert sham.meta["condition"] == "sham" and sham.meta["config"]["overlay"]["sham"] is True
     assert load_trial(out / "trials" / "P02-practice-sham").meta["condition"] == "sham"
+
+
+def test_a_set_mode_beside_a_condition_that_names_its_mode_is_refused(tmp_path, capsys):
+    """``--set overlay.mode=threat`` beside ``adas-type`` ran adas-type in threat mode, labelled adas-type."""
+    from dt_highway.cli import main
+
+    mode = ["overlay.mode=threat"]
+    with pytest.raises(ConfigError, match=r"^--set overlay.mode would override the mode adas-type names: drop it"):
+        plan(tmp_path, "agents/idm.toml", ["adas-type", "adas-threat"], 1, 0, overrides=mode)
+    assert len(plan(tmp_path, "agents/idm.toml", ["baseline", "adas", "sham"], 1, 0, overrides=mode)) == 3  # they take it
+    assert len(plan(tmp_path, "agents/idm.toml", ["adas-type"], 1, 0, overrides=["overlay.max_marks=2"])) == 1
+    for command in (["study", "--driver", "agents/idm.toml", "--conditions", "baseline,sham-threat"],
+                    ["session", "--participant", "P01", "--conditions", "baseline,sham-threat"]):
+        assert main([*command, "--set", " overlay.mode = type", "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--set overlay.mode would override the mode sham-threat names" in err, err
+        assert not (tmp_path / "o").exists()

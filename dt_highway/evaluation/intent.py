@@ -337,12 +337,13 @@ def eval_config(config: DTConfig, driven: bool = False) -> DTConfig:
     :param driven: a driver model drives the ego (autopilot off, the drivers' action type)
     :raises ConfigError: without the twin, its intention model or typed traffic
     """
+    needs = "twin-eval --intent, train-intent and train-chase need"  # the commands that record these episodes
     if not config.twin.enabled:
-        raise ConfigError("twin-eval --intent needs twin.enabled = true")
+        raise ConfigError(f"{needs} twin.enabled = true")
     if not config.twin.intention.enabled:
-        raise ConfigError("twin-eval --intent needs twin.intention.enabled = true")
+        raise ConfigError(f"{needs} twin.intention.enabled = true")
     if not config.traffic.driver_types:
-        raise ConfigError("twin-eval --intent needs traffic.driver_types = true (stock traffic has no typed drivers)")
+        raise ConfigError(f"{needs} traffic.driver_types = true (stock traffic has no typed drivers)")
     if driven:  # a driver's decisions reach the ego through the drivers' action type (as in a study)
         return merge(config, {"ego": {"autopilot": False}, "highway": {"initial_lane_id": None, "action": {"type": "Driver"}}})
     return merge(config, {"ego": {"autopilot": True}, "highway": {"initial_lane_id": None}})
