@@ -506,12 +506,10 @@ def cmd_study(args: argparse.Namespace) -> int:
     # bad driver files and configurations fail here, once, rather than in every trial
     drv = load_driver(driver)
     load_config(scenario, overrides)
-    for condition in conditions:  # a --set highway.action.type no driver can take
-        check_driver_action(load_config(scenario, overrides, deep_merge(condition_config(condition),
-                                                                          drv.config_overrides())))
-    if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
-        for condition in conditions:
-            cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
+    for condition in conditions:
+        cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
+        check_driver_action(cfg)  # a --set highway.action.type no driver can take
+        if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
             env = gym.make("dt-highway-v0", config=cfg.to_dict())
             try:
                 DriverSeat(env.unwrapped, drv.senses)  # its observation can be made of this env

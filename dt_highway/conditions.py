@@ -20,7 +20,7 @@ shown as ``adas`` (the placebo is blind), as are the named modes.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from dt_highway.config import ConfigError, DTConfig
@@ -98,21 +98,16 @@ def check_mode_override(conditions: Sequence[str], overrides: Sequence[str]) -> 
                           "take overlay.mode; the named conditions set their own)")
 
 
-def check_driver_action(config: DTConfig | Mapping[str, Any]) -> None:
+def check_driver_action(config: DTConfig) -> None:
     """Refuse, in one line, a configuration whose ego does not take the ``Driver`` action: every driver
     (scripted, a trained policy through its menu, the keyboard) answers with ``[acceleration, lane
     request]``, and each condition sets that action, so only a ``--set highway.action.type=...`` can
     change it.
 
-    :param config: the configuration of a driver's trial or episode (a :class:`~dt_highway.config.DTConfig`
-        or the env's flat ``config``)
+    :param config: the configuration of a driver's trial or episode
     :raises ConfigError: naming the action type found
     """
-    if isinstance(config, DTConfig):
-        action = config.highway.action
-    else:
-        action = config.get("action", {})
-    kind = action.get("type") if isinstance(action, Mapping) else None
+    kind = config.highway.action.get("type")
     if kind != "Driver":
         raise ConfigError(f"highway.action.type = {kind}: drivers act through the Driver action ([acceleration, "
                           "lane request]), which every condition sets; leave highway.action.type out of --set")

@@ -242,7 +242,8 @@ def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, s
 
     :param conditions: any of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``,
         ``adas-type``, ``adas-threat``, ``sham``...), each once
-    :raises ConfigError: on an unknown or repeated condition, ``trials < 1``, or a seed that is not an integer >= 0
+    :raises ConfigError: on an unknown or repeated condition, ``trials < 1``, a seed that is not an integer >= 0, or
+        an ``overlay.mode`` override beside a condition that names its mode
     """
     if isinstance(conditions, str):
         raise ConfigError(f"conditions must be a list of names, e.g. ['baseline', 'adas'] (got the string {conditions!r})")
