@@ -138,3 +138,27 @@ def test_a_set_mode_beside_a_condition_that_names_its_mode_is_refused(tmp_path, 
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "--set overlay.mode would override the mode sham-threat names" in err, err
         assert not (tmp_path / "o").exists()
+
+
+def test_a_session_goes_on_only_in_the_conditions_and_order_it_started_with(tmp_path, capsys):
+    """Resumed with other ``--conditions`` (or the same typed in another order), a session added trials out of the
+    participant's counterbalanced order."""
+    from dt_highway.cli import main
+
+    keys = tmp_path / "keys.txt"
+    keys.write_text("0.1 down UP\n0.3 up UP\n")
+    out = tmp_path / "k"
+    args = ["session", "--participant", "P01", "--duration", "0.6", "--practice-duration", "0.3", "--out", str(out),
+            "--keys-from", str(keys), "--no-minimap", "--set", "highway.vehicles_count=12", "--set", "twin.preroll_s=5",
+            "--set", "camera.width_px=320", "--set", "camera.height_px=180"]
+    assert main([*args, "--conditions", "baseline,sham"]) == 0
+    trials = sorted(p.name for p in (out / "trials").iterdir())
+    capsys.readouterr()
+    for other, gives in (("baseline,adas", "baseline, adas"), ("sham,baseline", "sham, baseline")):
+        assert main([*args, "--conditions", other]) == 2
+        err = capsys.readouterr().err
+        said = f"P01's session started with the conditions baseline, sham (in that order); --conditions gives {gives}"
+        assert err.count("\n") == 1 and said in err, err
+        assert sorted(p.name for p in (out / "trials").iterdir()) == trials  # nothing driven
+    assert main([*args, "--conditions", "baseline,sham"]) == 0  # the same: goes on (all done, skipped)
+    assert "4 of 4 trials done" in capsys.readouterr().out

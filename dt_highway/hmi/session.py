@@ -513,6 +513,26 @@ class _Session:
                 raise ConfigError(f"{d.name} was driven with other settings ({'; '.join(differ)}): go on with the "
                                   "settings the session started with, or use another --out")
 
+    def check_same_conditions(self) -> None:
+        """Refuse to go on with a participant's session in other conditions, or in another order, than it started
+        with (another ``--conditions``, or the same ones typed in another order): the trials would leave the
+        participant's counterbalanced order. The first ``start`` in the participant's session log says how it
+        started; an unreadable log is not compared.
+
+        :raises ConfigError: one line naming both orders, before any window opens
+        """
+        try:
+            lines = self.log_path.read_text(encoding="utf-8").splitlines() if self.log_path.is_file() else []
+            start = next((e for e in map(json.loads, lines) if e.get("event") == "start"), None)
+            was = [t["condition"] for t in start["plan"] if not t["practice"]] if start else None
+        except (OSError, ValueError, TypeError, KeyError):
+            return
+        now = [t.condition for t in self.plan if not t.practice]
+        if was is not None and was != now:
+            raise ConfigError(f"{self.base.participant}'s session started with the conditions {', '.join(was)} (in "
+                              f"that order); --conditions gives {', '.join(now)}: go on with the conditions it started "
+                              "with, or use another --out")
+
     def end_screen(self) -> None:
         """The end screen, until Enter; the session is over already, so closing the window (or a
         SIGTERM) there is its normal end, not a stop."""
@@ -523,6 +543,7 @@ class _Session:
 
     def run(self) -> SessionOutcome:
         """The whole session (module docstring)."""
+        self.check_same_conditions()
         done = {t.name: completed_attempt(self.out, t.name) for t in self.plan}
         self.check_same_settings(done)
         self.log("start", participant=self.base.participant, protocol=self.protocol.name,
