@@ -525,7 +525,7 @@ class _Session:
             lines = self.log_path.read_text(encoding="utf-8").splitlines() if self.log_path.is_file() else []
             start = next((e for e in map(json.loads, lines) if e.get("event") == "start"), None)
             was = [t["condition"] for t in start["plan"] if not t["practice"]] if start else None
-        except (OSError, ValueError, TypeError, KeyError):
+        except (OSError, ValueError, TypeError, KeyError, AttributeError):  # a damaged log: not compared
             return
         now = [t.condition for t in self.plan if not t.practice]
         if was is not None and was != now:
