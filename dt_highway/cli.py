@@ -33,7 +33,7 @@ from dt_highway.bench import (
     bench_sim,
     bench_train,
 )
-from dt_highway.conditions import CONDITIONS, check_driver_action, check_mode_override, condition_config
+from dt_highway.conditions import CONDITIONS, condition_config, driver_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
@@ -507,8 +507,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     drv = load_driver(driver)
     load_config(scenario, overrides)
     for condition in conditions:
-        cfg = load_config(scenario, overrides, deep_merge(condition_config(condition), drv.config_overrides()))
-        check_driver_action(cfg)  # a --set highway.action.type no driver can take
+        cfg = driver_config(scenario, overrides, condition, drv.config_overrides())  # e.g. an action no driver takes
         if hasattr(drv, "model"):  # a trained policy: check once that it can drive this scenario in each condition
             env = gym.make("dt-highway-v0", config=cfg.to_dict())
             try:
@@ -626,7 +625,6 @@ def cmd_session(args: argparse.Namespace) -> int:
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     order = condition_order(base.participant, conditions)
-    check_mode_override(order, base.overrides)
     protocol = load_protocol(args.protocol)
     answers = Path(args.answers_from) if args.answers_from else None
     print(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice {', '.join(order)}, "

@@ -20,10 +20,10 @@ shown as ``adas`` (the placebo is blind), as are the named modes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-from dt_highway.config import ConfigError, DTConfig
+from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 
 CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
 """Every condition a study or a keyboard session can run"""
@@ -81,6 +81,23 @@ def condition_config(condition: str) -> dict[str, Any]:
     if overlay:
         out["overlay"] = overlay
     return out
+
+
+def driver_config(scenario: str | None, overrides: Sequence[str], condition: str,
+                  driver_overrides: Mapping[str, Any]) -> DTConfig:
+    """The configuration a driver's trial or episode runs with: the scenario file, then the condition's
+    settings, then the driver's own (``Driver.config_overrides()``), then ``overrides``; checked that the
+    ego takes the drivers' action (:func:`check_driver_action`).
+
+    :param scenario: scenario file (``None``: the defaults)
+    :param overrides: ``dotted.key=value`` strings (``--set``)
+    :param condition: one of :data:`CONDITIONS`
+    :param driver_overrides: what the driver adds to the configuration
+    :raises ConfigError: one line, on a bad scenario, condition or override
+    """
+    cfg = load_config(scenario, list(overrides), deep_merge(condition_config(condition), dict(driver_overrides)))
+    check_driver_action(cfg)
+    return cfg
 
 
 def check_mode_override(conditions: Sequence[str], overrides: Sequence[str]) -> None:

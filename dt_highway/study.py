@@ -39,8 +39,8 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
-from dt_highway.conditions import check_driver_action, check_mode_override, condition_config
-from dt_highway.config import ConfigError, deep_merge, find_file, load_config
+from dt_highway.conditions import check_mode_override, condition_config, driver_config
+from dt_highway.config import ConfigError, find_file
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
@@ -177,9 +177,7 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
     try:
         driver = load_driver(spec.driver)
-        cfg = load_config(spec.scenario, list(spec.overrides),
-                          deep_merge(condition_config(spec.condition), driver.config_overrides()))
-        check_driver_action(cfg)
+        cfg = driver_config(spec.scenario, spec.overrides, spec.condition, driver.config_overrides())
     except ConfigError as err:
         return {"status": "failed", "directory": str(out), "error": str(err)}
     meta = {"driver": driver.name, "driver_file": spec.driver, "driver_params": driver.params(),

@@ -26,8 +26,8 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from dt_highway.conditions import CONDITIONS, check_driver_action, condition_config
-from dt_highway.config import ConfigError, deep_merge, load_config
+from dt_highway.conditions import CONDITIONS, driver_config
+from dt_highway.config import ConfigError
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.drivers.policy import PolicyDriver
 from dt_highway.env.seat import DriverSeat
@@ -95,8 +95,7 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
     if episodes < 1:
         raise ConfigError(f"--episodes must be >= 1 (got {episodes})")
     driver = driver if driver is not None else load_driver(driver_path)
-    cfg = load_config(scenario, list(overrides), deep_merge(condition_config(condition), driver.config_overrides()))
-    check_driver_action(cfg)
+    cfg = driver_config(scenario, overrides, condition, driver.config_overrides())
     env = gym.make("dt-highway-v0", config=cfg.to_dict())
     rows = []
     try:
@@ -240,9 +239,7 @@ class _RowRunner:
 
     def __init__(self, row: Row, scenario: str | None, overrides: tuple[str, ...]) -> None:
         self.row, self.driver = row, row_driver(row)
-        cfg = load_config(scenario, list(overrides), deep_merge(condition_config(row.condition),
-                                                                self.driver.config_overrides()))
-        check_driver_action(cfg)
+        cfg = driver_config(scenario, overrides, row.condition, self.driver.config_overrides())
         self.env = gym.make("dt-highway-v0", config=cfg.to_dict())
         if hasattr(self.driver, "model"):  # a policy that cannot drive this env says so before any episode
             DriverSeat(self.env.unwrapped, self.driver.senses)

@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 import pygame
 
-from dt_highway.conditions import check_condition, shows_overlay
+from dt_highway.conditions import check_condition, check_mode_override, shows_overlay
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
 from dt_highway.hmi.drive import (
@@ -216,10 +216,12 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None,
     :param practice_duration_s: each practice trial's length [s] (``None``: the protocol's)
     :param conditions: the session's conditions
     :param protocol: the session's protocol (its labels and practice length; ``None``: the default one)
-    :raises ConfigError: on unknown or repeated conditions
+    :raises ConfigError: on unknown or repeated conditions, or an ``overlay.mode`` override beside a condition that
+        names its mode
     """
     protocol = protocol or load_protocol()
     order = condition_order(base.participant, conditions)
+    check_mode_override(order, base.overrides)
     practice_s = practice_duration_s if practice_duration_s is not None else protocol.practice_duration_s
     k = len(order)
     trials = []
