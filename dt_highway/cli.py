@@ -66,7 +66,7 @@ from dt_highway.evaluation.twin import episode_steps, evaluate_twin
 from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol
 from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, open_wheel, parse_size, run_drive
 from dt_highway.hmi.keys import KeyScript, KeyScriptError
-from dt_highway.hmi.replay import replay_trial
+from dt_highway.hmi.replay import replay_frames_in, replay_trial
 from dt_highway.hmi.session import condition_order, run_session
 from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
@@ -154,6 +154,12 @@ def _add_config_args(p: argparse.ArgumentParser, default_scenario: str | None = 
     )
 
 
+def _add_result_out(p: argparse.ArgumentParser, text: str) -> None:
+    """``--out FILE`` for a command's JSON result, and the ``--force`` that lets it replace an earlier one."""
+    p.add_argument("--out", dest="out_json", metavar="FILE", help=text)
+    p.add_argument("--force", action="store_true", help="replace the file --out names if it exists")
+
+
 def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DTConfig:
     return load_config(args.scenario, args.overrides, extra)
 
@@ -234,8 +240,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
             c = r["ceiling"]
             print(f"ceiling (a ranking by every driver's true parameters): AUC vs label {c['auc_label']:.3f}, "
                   f"precision {c['precision_at_recall_0_80']:.3f} at recall >= 0.80")
-    if args.out:
-        _write_result(args.out, result)
+    if args.out_json:
+        _write_result(args.out_json, result)
     return 0
 
 
@@ -312,8 +318,8 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
             result = evaluate_intent(cfg, episodes, args.seed, progress=bar.update, driver=driver, oracle=oracle)
         lines = format_intent(result)
     print(dump_json(result) if args.json else "\n".join(lines))
-    if args.out:
-        _write_result(args.out, result)
+    if args.out_json:
+        _write_result(args.out_json, result)
     return 0
 
 
@@ -649,8 +655,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError("--every-s S needs --frames-out DIR")
     if args.speed != 1.0 and args.frames_out:
         raise ConfigError("--speed is for the window: --frames-out writes every frame as fast as it can")
+    if args.force and not args.frames_out:
+        raise ConfigError("--force is for --frames-out DIR (it replaces the frames DIR holds)")
     result = replay_trial(args.trial, frames_out=args.frames_out, every_s=args.every_s, window=not args.frames_out,
-                          speed=args.speed)
+                          speed=args.speed, replace_frames=args.force)
     where = f", {result.frames} frames in {result.frames_dir}" if result.frames_dir is not None else ""
     where += " (stopped in the window)" if result.stopped else ""
     if result.followed_log:
@@ -894,9 +902,8 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
             raise ConfigError(str(exc)) from None
     result["weights"] = args.weights or "shipped"
     result["scale"] = args.scale
-    if getattr(args, "out_json", None):
-        Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out_json).write_text(dump_json(result) + "\n")
+    if args.out_json:
+        _write_result(args.out_json, result)
     if args.json:
         print(dump_json(result))
     else:
@@ -969,8 +976,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for bar in bars:
             bar.close()
     if args.out_json:
-        Path(args.out_json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out_json).write_text(dump_json(result) + "\n")
+        _write_result(args.out_json, result)
     if args.json:
         print(dump_json({k: v for k, v in result.items() if k != "per_episode" or args.episodes_json}))
     else:
@@ -1164,7 +1170,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "position along the road and speed; every open cut-in attempt, which gives the chases too): what "
                    "a better twin could gain")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", help="also write the JSON result to this file")
+    _add_result_out(p, "also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_twin_eval)
 
@@ -1287,6 +1293,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       "or as PNG frames")
     p.add_argument("trial", metavar="TRIAL_DIR", help="the trial's directory, e.g. runs/keyboard-study/trials/P01-adas")
     p.add_argument("--frames-out", metavar="DIR", help="write PNG frames to DIR, no window (headless)")
+    p.add_argument("--force", action="store_true", help="with --frames-out: replace the frames of an earlier replay "
+                   "DIR holds (they are deleted once the trial is read)")
     p.add_argument("--every-s", type=_positive(float, "--every-s"), metavar="S",
                    help="with --frames-out: a frame every S seconds of trial time (default every simulation step)")
     p.add_argument("--speed", type=_positive(float, "--speed"), default=1.0,
@@ -1319,7 +1327,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with the ADAS overlay or without (default adas)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--episodes-json", action="store_true", help="with --json: include every episode's metrics")
-    p.add_argument("--out", dest="out_json", metavar="FILE", help="also write the JSON result (every episode) to FILE")
+    _add_result_out(p, "also write the JSON result (every episode) to FILE")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_evaluate)
 
@@ -1390,7 +1398,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale", choices=("resize", "native"), default="resize",
                    help="frames of another size: resized to the network's (default) or read as they are")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--out", dest="out_json", help="also write the JSON result to this file")
+    _add_result_out(p, "also write the JSON result to this file")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_detector_eval)
 
@@ -1517,11 +1525,26 @@ def _check_out(args: argparse.Namespace) -> None:
             raise ConfigError(f"{option} {value}: {existing} is a file, not a folder")
         if not names_folder and target.is_dir() and getattr(args, "detector", None) != "train":  # it says it better
             raise ConfigError(f"{option} {value} is a folder: name a file")
+        _check_not_replaced(args, attr, option, target)
         try:
             with tempfile.TemporaryFile(dir=existing):
                 pass
         except OSError as exc:
             raise ConfigError(f"{option} {value}: cannot write in {existing} ({exc.strerror or exc})") from None
+
+
+def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target: Path) -> None:
+    """A JSON result (``--out FILE``) or replay frames already there are replaced only with ``--force``.
+
+    :raises ConfigError: one line naming what is there and how to replace it
+    """
+    if getattr(args, "force", False):
+        return
+    if attr == "out_json" and target.is_file():
+        raise ConfigError(f"{option} {target} exists: pass --force to replace it, or name another file")
+    if attr == "frames_out" and (frames := replay_frames_in(target)):
+        raise ConfigError(f"{option} {target} holds {len(frames)} frames of an earlier replay: pass --force to "
+                          "replace them, or name another folder")
 
 
 def _os_error(exc: OSError) -> str:

@@ -101,6 +101,20 @@ def _one_line_error(proc, must_contain):
     assert must_contain in lines[0]
 
 
+def test_a_json_result_already_there_is_replaced_only_with_force(tmp_path):
+    """twin-eval, evaluate and detector eval refuse an --out FILE that exists before any work (the file is
+    kept); --force replaces it."""
+    earlier = tmp_path / "result.json"
+    earlier.write_text('{"earlier": true}\n')
+    for cmd in (["twin-eval"], ["evaluate", "--driver", "agents/idm.toml"], ["detector", "eval"]):
+        _one_line_error(_cli(*cmd, "--out", str(earlier), "--quiet"),
+                        f"--out {earlier} exists: pass --force to replace it, or name another file")
+    assert earlier.read_text() == '{"earlier": true}\n'
+    assert main(["twin-eval", "--episodes", "1", "--min-observed-s", "1", "--out", str(earlier), "--force", "--quiet",
+                 *TINY]) == 0
+    assert "precision" in json.loads(earlier.read_text())
+
+
 def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--set", "twin.enabled=false", "--quiet"), "twin.enabled")
     _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")

@@ -62,6 +62,21 @@ def test_the_cli_replays_to_frames_and_says_the_path_was_the_logged_one(trial_di
     out = capsys.readouterr().out
     assert f"replayed {n} steps" in out and "2 frames" in out and "followed the log" in out
     assert sorted(p.name for p in (tmp_path / "f").iterdir()) == ["t0000.00s.png", "t0002.00s.png"]
+    # a second replay into the same folder is refused before it runs: the frames there stay
+    (tmp_path / "f" / "notes.txt").write_text("mine")
+    before = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "f").iterdir()}
+    err = _one_line_error(capsys, ["replay", str(trial_dir), "--frames-out", str(tmp_path / "f"), "--every-s", "1"])
+    assert "holds 2 frames of an earlier replay: pass --force" in err
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "f").iterdir()} == before
+    # --force: the earlier frames go (t0002.00s.png is written anew), other files stay
+    assert main(["replay", str(trial_dir), "--frames-out", str(tmp_path / "f"), "--every-s", "1.5", "--force"]) == 0
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == ["notes.txt", "t0000.00s.png", "t0001.50s.png"]
+    assert (tmp_path / "f" / "notes.txt").read_text() == "mine"
+    capsys.readouterr()
+    assert "--force is for --frames-out" in _one_line_error(capsys, ["replay", str(trial_dir), "--force"])
+    # a trial that cannot be read deletes nothing, even with --force
+    err = _one_line_error(capsys, ["replay", str(tmp_path / "nowhere"), "--frames-out", str(tmp_path / "f"), "--force"])
+    assert "not a trial directory" in err and len(list((tmp_path / "f").glob("t*.png"))) == 2
 
 
 def test_a_log_the_replay_does_not_follow_is_reported(trial_dir, tmp_path, capsys):

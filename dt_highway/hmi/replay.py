@@ -26,6 +26,7 @@ import csv
 import io
 import json
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -381,9 +382,19 @@ class _Outputs:
             pygame.quit()
 
 
+FRAME_NAME = re.compile(r"t\d{4,}\.\d{2}s\.png")
+"""The name of a frame :func:`replay_trial` writes: its trial time (``t0012.40s.png``)"""
+
+
+def replay_frames_in(folder: Path) -> list[Path]:
+    """The replay frames ``folder`` holds, by name (none if it is no folder)."""
+    return sorted(p for p in folder.iterdir() if FRAME_NAME.fullmatch(p.name)) if folder.is_dir() else []
+
+
 def replay_trial(directory: str | Path, frames_out: str | Path | None = None, every_s: float | None = None,
                  window: bool = False, speed: float = 1.0,
-                 on_frame: Callable[[float, np.ndarray], None] | None = None) -> ReplayResult:
+                 on_frame: Callable[[float, np.ndarray], None] | None = None,
+                 replace_frames: bool = False) -> ReplayResult:
     """Replay a keyboard trial (see the module docstring).
 
     :param directory: the trial's directory
@@ -393,6 +404,9 @@ def replay_trial(directory: str | Path, frames_out: str | Path | None = None, ev
     :param window: show the replay in a window at ``speed`` times real time (Space pauses, Esc stops)
     :param speed: replay speed in the window, times real time
     :param on_frame: called with the trial time [s] and every picture composed
+    :param replace_frames: delete the frames of an earlier replay ``frames_out`` holds (see
+        :func:`replay_frames_in`) once the trial is read, so the folder holds this replay's alone (``False``:
+        they stay, and the ones at this replay's trial times are overwritten)
     :return: what was replayed, and whether it followed the log
     :raises ReplayError: one line, when the directory cannot be replayed
     """
@@ -402,6 +416,9 @@ def replay_trial(directory: str | Path, frames_out: str | Path | None = None, ev
     if not (math.isfinite(speed) and speed > 0):
         raise ReplayError(f"--speed must be a finite number > 0 (got {speed})")
     player = _Player(trial)
+    if frames_out is not None and replace_frames:
+        for frame in replay_frames_in(Path(frames_out)):
+            frame.unlink()
     replayed: list[np.ndarray] = []
     out = None
     t_start = time.perf_counter()
