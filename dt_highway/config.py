@@ -713,6 +713,15 @@ class TwinConfig(_Section):
     tagger: TaggerConfig = Field(default_factory=TaggerConfig)
     intention: IntentionConfig = Field(default_factory=IntentionConfig)
 
+    @model_validator(mode="after")
+    def _intent_columns(self) -> TwinConfig:
+        if self.in_observation_intent and not self.in_observation:
+            raise ValueError("in_observation_intent = true needs in_observation = true (its columns follow the tag's)")
+        if self.in_observation_intent and not self.intention.enabled:
+            raise ValueError("in_observation_intent = true needs intention.enabled = true (its columns carry the "
+                             "intention; without it they would stay 0)")
+        return self
+
     @model_serializer(mode="wrap")
     def _dump(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         out: dict[str, Any] = handler(self)
@@ -838,10 +847,10 @@ class OverlayConfig(_Section):
     hold_s: float = Field(1.0, ge=0, le=10,
                           description="a mark stays this long after its vehicle stops qualifying or is lost [s]")
     mode: Literal["type", "threat", "both"] = Field("type", description="which cars are marked: type, threat or both")
-    horizon_s: float | None = Field(None, gt=0, le=10, description="threat: the intention horizon read (the twin's "
-                                    "nearest; None: twin.intention.operating_horizon_s) [s]")
-    threshold: float | None = Field(None, ge=0, le=1, description="threat: least p_change of a lane change into the "
-                                    "ego's lane (None: twin.intention.threshold) [-]")
+    horizon_s: float | None = Field(None, gt=0, le=10, description="threat: the intention horizon read, one of "
+                                    "twin.intention.horizons_s (None: twin.intention.operating_horizon_s) [s]")
+    threshold: float | None = Field(None, gt=0, le=1, description="threat: least p_change of a lane change into the "
+                                    "ego's lane, in (0, 1] (0 would mark every car; None: twin.intention.threshold) [-]")
     max_marks: int = Field(3, ge=1, le=50, description="most marks shown at once (nearest first) [-]")
     max_range_m: float = Field(100.0, gt=0, le=2000, description="no mark for a car farther than this [m]")
     sham: bool = Field(False, description="placebo: the same number of marks, alike, on cars drawn at random")
@@ -868,6 +877,10 @@ class DTConfig(_Section):
             raise ValueError("fusion.enabled = true needs camera.enabled = true")
         if self.fusion.enabled and not self.twin.enabled:
             raise ValueError("fusion.enabled = true needs twin.enabled = true")
+        horizons = self.twin.intention.horizons_s
+        if self.overlay.horizon_s is not None and not any(abs(h - self.overlay.horizon_s) < 1e-9 for h in horizons):
+            raise ValueError(f"overlay.horizon_s must be one of twin.intention.horizons_s {list(horizons)} (got "
+                             f"{self.overlay.horizon_s}): the twin estimates the intention at those horizons only")
         if self.fusion.enabled and self.overlay.mode != "type" and not self.twin.intention.enabled:
             raise ValueError(f"overlay.mode = {self.overlay.mode!r} needs twin.intention.enabled = true (its threat marks "
                              "read the twin's lane-change intention; without it none would show)")

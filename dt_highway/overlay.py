@@ -2,8 +2,8 @@
 
 Which cars (:func:`select_items`, ``overlay.mode``): ``type`` marks every car the twin tags
 aggressive ("AGGRESSIVE DRIVER"); ``threat`` marks every car whose lane-change intention at
-``overlay.horizon_s`` (:meth:`~dt_highway.twin.cloud.TwinVehicleView.intent`, the twin's nearest
-horizon) has ``p_change >= overlay.threshold`` (by default the twin's operating point,
+``overlay.horizon_s`` (:meth:`~dt_highway.twin.cloud.TwinVehicleView.intent`; the configuration takes
+one of the twin's horizons only) has ``p_change >= overlay.threshold`` (by default the twin's operating point,
 ``twin.intention.operating_horizon_s`` and ``twin.intention.threshold``) and targets the ego's lane ("CUTTING IN" with the side
 it comes from, left or right of the ego's lane centre by its last fix; "+ aggressive driver" when the
 twin also tags it; the percentage shown is ``p_change``); ``both`` marks either (a car that is both

@@ -297,6 +297,27 @@ def test_a_number_read_back_from_json_or_toml_is_checked_once_for_every_reader()
     assert positive_number(15) == 15.0 and positive_number(0) is None and positive_number(-1) is None
 
 
+def test_values_that_were_silently_ignored_or_meaningless_are_refused():
+    """Each was accepted and did something else than it says: the overlay read the twin's nearest horizon for
+    any horizon_s, a threshold of 0 marked every car, the intention columns stayed 0 or were not added."""
+    cases = {
+        ("overlay.horizon_s=2.5",): "overlay.horizon_s must be one of twin.intention.horizons_s [1.0, 2.0, 3.0] (got 2.5)",
+        ("overlay.threshold=0",): "overlay.threshold = 0 is out of range: must be > 0",
+        ("twin.in_observation_intent=true",): "in_observation_intent = true needs in_observation = true",
+        ("twin.in_observation=true", "twin.in_observation_intent=true", "twin.intention.enabled=false"):
+            "in_observation_intent = true needs intention.enabled = true",
+    }
+    for overrides, words in cases.items():
+        with pytest.raises(ConfigError) as err:
+            load_config(None, list(overrides))
+        assert words in str(err.value) and "\n" not in str(err.value), err.value
+    # what stays allowed: one of the twin's horizons, a threshold up to 1, the columns with the tag's
+    cfg = load_config(None, ["overlay.horizon_s=1", "overlay.threshold=1", "twin.intention.horizons_s=[1.0,2.5,3.0]",
+                             "twin.in_observation=true", "twin.in_observation_intent=true"])
+    assert cfg.overlay.horizon_s == 1.0 and cfg.twin.in_observation_intent
+    assert load_config(None, ["twin.intention.horizons_s=[1.0,2.5,3.0]", "overlay.horizon_s=2.5"]).overlay.horizon_s == 2.5
+
+
 @pytest.mark.parametrize("override, words", [
     # each was accepted and then a traceback, a crash, a hang or nan (a sweep of every key's edge values)
     ("highway.collision_reward=0.5", "normalize_reward needs collision_reward < high_speed_reward + right_lane_reward"),

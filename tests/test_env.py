@@ -206,6 +206,18 @@ def test_reseeding_the_same_env_repeats_the_episode(small_config):
     env.close()
 
 
+def test_a_seed_that_is_no_int_is_refused_in_one_line_and_changes_nothing(small_config):
+    env = _make(small_config)
+    env.reset(seed=11)
+    _, _, _, _, info = env.step(1)
+    for bad in ("a", 1.5, -1, np.int64(3)):  # 1.5 was seed 1; "a" a ValueError from int()
+        with pytest.raises(gym.error.Error) as err:
+            env.reset(seed=bad)
+        assert "reset(seed=...) must be a Python int >= 0" in str(err.value) and "\n" not in str(err.value)
+    assert env.unwrapped._world_seed == 11  # the refused resets changed nothing
+    env.close()
+
+
 def test_the_constructors_episode_has_no_preroll_and_the_first_reset_does(small_config, monkeypatch):
     # highway-env's constructor resets once; that episode is never driven (gymnasium asks for a reset first),
     # so its pre-roll (seconds with the default world) is skipped; the first reset runs its own in full

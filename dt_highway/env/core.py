@@ -31,6 +31,7 @@ from types import FrameType
 from typing import Any
 
 import numpy as np
+from gymnasium import error as gym_error
 from highway_env.envs.common.action import action_factory
 from highway_env.envs.common.observation import (
     KinematicObservation,
@@ -410,11 +411,15 @@ class DTHighwayEnv(HighwayEnv):
         the world: same drivers, and the twin keeps their evidence and tags when
         ``twin.store.persist_across_episodes`` is on (the default), as a cloud service would.
 
-        :param seed: seed of every random generator of the episode
+        :param seed: seed of every random generator of the episode: a Python ``int`` >= 0, as Gymnasium's
         :param options: ``{"config": {...}}`` deep-merges a partial configuration first
         :return: observation and info
+        :raises gymnasium.error.Error: a ``seed`` that is no Python ``int`` >= 0 (one line, before any change)
         """
         if seed is not None:
+            if not isinstance(seed, int) or seed < 0:  # Gymnasium's own rule, said before int() truncates 1.5
+                raise gym_error.Error(f"reset(seed=...) must be a Python int >= 0 (got {seed!r} of type "
+                                      f"{type(seed).__name__})")
             self._built_for = None
             self._world_seed = int(seed)
         self._apply_nested_config_edits()
