@@ -345,13 +345,16 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
         args.scenario = EVAL_SCENARIO
     driver, extra = _intent_driver(args)
     cfg = _config(args, extra)
-    record = _progress(args.episodes * episode_steps(cfg), "record", args.quiet)
-    fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     alternate: dict[str, Any] = {}
     for text in args.alternate:
         alternate = deep_merge(alternate, parse_override(text, "--alternate"))
-    merge(cfg, alternate)  # a bad key or value: the one-line error, before any episode runs
+    for where, tree in (("--set", cfg), ("--alternate", merge(cfg, alternate))):  # a bad key or value: one line
+        if tree.twin.intention.model != "learned":
+            raise ConfigError(f"train-intent trains the learned network: twin.intention.model = "
+                              f"{tree.twin.intention.model!r} ({where}) has no weights to train; drop it")
     _weights_out(args, ".npz")
+    record = _progress(args.episodes * episode_steps(cfg), "record", args.quiet)
+    fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     with record, fitting:
         try:
             summary = train_intention(cfg, args.episodes, args.seed, args.out, args.epochs, alternate or None,

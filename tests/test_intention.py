@@ -597,6 +597,11 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
     assert "twin.intention.enabled" in capsys.readouterr().err
     assert main(["train-intent", "--out", "x.npz", "--alternate", "traffic.nope=1", "--quiet", *TINY]) == 2
     assert "traffic.nope" in capsys.readouterr().err
+    for option in ("--set", "--alternate"):  # the physics model has nothing to train: it trained the network anyway
+        assert main(["train-intent", "--out", "x.npz", option, "twin.intention.model=physics", "--quiet", *TINY]) == 2
+        err = capsys.readouterr().err
+        assert f"twin.intention.model = 'physics' ({option}) has no weights to train" in err and err.count("\n") == 1
+    assert not Path("x.npz").exists()
 
 
 def test_train_intent_refuses_to_replace_weights_or_learn_from_nothing(tmp_path, capsys):
