@@ -67,7 +67,7 @@ from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol
 from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, open_wheel, parse_size, run_drive
 from dt_highway.hmi.keys import KeyScript, KeyScriptError
 from dt_highway.hmi.replay import replay_frames_in, replay_trial
-from dt_highway.hmi.session import condition_order, run_session
+from dt_highway.hmi.session import run_session
 from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
 from dt_highway.rl.config import load_train_config
@@ -633,11 +633,8 @@ def cmd_session(args: argparse.Namespace) -> int:
     base = _drive_options(args, "baseline")
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    order = condition_order(base.participant, conditions)
     protocol = load_protocol(args.protocol)
     answers = Path(args.answers_from) if args.answers_from else None
-    print(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice {', '.join(order)}, "
-          f"then {', '.join(order)}")
     outcome = run_session(base, args.practice_duration, conditions=conditions, protocol=protocol, answers_from=answers)
     done, n = sum(t["status"] in ("completed", "skipped") for t in outcome.trials), len(outcome.trials)
     print(f"{done} of {n} trials done" + (f"; stopped: {outcome.stopped}" if outcome.stopped else "")

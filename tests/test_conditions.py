@@ -135,8 +135,10 @@ def test_a_set_mode_beside_a_condition_that_names_its_mode_is_refused(tmp_path, 
     for command in (["study", "--driver", "agents/idm.toml", "--conditions", "baseline,sham-threat"],
                     ["session", "--participant", "P01", "--conditions", "baseline,sham-threat"]):
         assert main([*command, "--set", " overlay.mode = type", "--out", str(tmp_path / "o")]) == 2
-        err = capsys.readouterr().err
+        said = capsys.readouterr()
+        err = said.err
         assert err.count("\n") == 1 and "--set overlay.mode would override the mode sham-threat names" in err, err
+        assert said.out == ""  # the session announced its plan before refusing it
         assert not (tmp_path / "o").exists()
 
 

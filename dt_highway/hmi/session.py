@@ -645,7 +645,8 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
                 questionnaires: QuestionnaireFn = run_questionnaires,
                 on_frame: Callable[[np.ndarray], None] | None = None) -> SessionOutcome:
     """Run a participant's session (module docstring): the trials not completed yet, with the
-    protocol's screens, the questionnaires and a status line per attempt.
+    protocol's screens, the questionnaires and a status line per attempt, after a line with the
+    session's plan once every check has passed.
 
     :param base: shared options (``condition`` and ``practice`` are ignored: the plan sets them)
     :param practice_duration_s: each practice trial's length [s] (``None``: the protocol's)
@@ -664,6 +665,9 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
     check_questionnaires(protocol)
     if answers_from is not None:  # a file that cannot be read or misses an answer fails now, not after a trial
         check_answers(load_answers(answers_from), plan, protocol, Path(base.out), where=f"answers file {answers_from}")
+    say(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice "
+        f"{', '.join(t.condition for t in plan if t.practice) or 'none'}, then "
+        f"{', '.join(t.condition for t in plan if not t.practice)}")
     for moved in recover_staged(Path(base.out)):
         say(f"{moved.name}: left by a process that died, kept as aborted")
     with _Signals() as signals:
