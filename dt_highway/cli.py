@@ -661,6 +661,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                           speed=args.speed, replace_frames=args.force)
     where = f", {result.frames} frames in {result.frames_dir}" if result.frames_dir is not None else ""
     where += " (stopped in the window)" if result.stopped else ""
+    if result.incomplete:
+        print(f"{args.trial}: {result.incomplete}; replayed what it holds")
     if result.followed_log:
         print(f"replayed {result.steps} steps of {args.trial}{where}: the ego followed the log "
               f"(largest position difference {result.max_deviation_m:.3g} m)")

@@ -99,6 +99,22 @@ def test_a_log_the_replay_does_not_follow_is_reported(trial_dir, tmp_path, capsy
     assert f"left the logged path at t = {t_s[21]:.2f} s" in capsys.readouterr().out
 
 
+def test_a_log_cut_short_says_so_and_replays_what_it_holds(trial_dir, tmp_path, capsys):
+    """A steps.csv that lost its last rows (a disk full, a copy cut off) replayed silently as the whole trial."""
+    cut = tmp_path / "P01-adas"
+    shutil.copytree(trial_dir, cut)
+    text = (trial_dir / "steps.csv").read_bytes()
+    (cut / "steps.csv").write_bytes(text[: len(text) - 40])  # the last row cut off mid-line
+    written = len(load_trial(trial_dir).steps)
+    assert replay_trial(trial_dir).incomplete is None
+    result = replay_trial(cut)
+    assert result.steps == written - 1 and result.followed_log
+    assert result.incomplete == (f"steps.csv holds {written - 1} of the {written} rows meta.json counts written: "
+                                 "the rest is lost")
+    assert main(["replay", str(cut), "--frames-out", str(tmp_path / "f"), "--every-s", "5"]) == 0
+    assert f"{cut}: {result.incomplete}; replayed what it holds" in capsys.readouterr().out
+
+
 def _one_line_error(capsys, args: list[str]) -> str:
     assert main(args) == 2
     err = capsys.readouterr().err.strip()

@@ -67,6 +67,7 @@ class LoggedTrial:
     :param keys: the keys held at every env step (``;``-separated)
     :param key_events: the key presses and releases, ``(t_s, down, key)``
     :param rows_per_action: simulation steps per env step (1 in keyboard trials)
+    :param rows: the rows ``steps.csv`` holds (complete ones: a last line cut off mid-row is not read)
     """
 
     path: Path
@@ -77,6 +78,16 @@ class LoggedTrial:
     keys: list[str]
     key_events: list[tuple[float, bool, str]] = field(default_factory=list)
     rows_per_action: int = 1
+    rows: int = 0
+
+    @property
+    def incomplete(self) -> str | None:
+        """Why ``steps.csv`` holds less than the trial wrote (``meta.json``'s ``n_steps``), ``None`` if it
+        holds it all or the count is not there (a trial whose process died)."""
+        written = self.meta.get("n_steps")
+        if isinstance(written, int) and not isinstance(written, bool) and written > self.rows:
+            return f"steps.csv holds {self.rows} of the {written} rows meta.json counts written: the rest is lost"
+        return None
 
     @property
     def config(self) -> dict[str, Any]:
@@ -191,7 +202,7 @@ def read_logged_trial(directory: str | Path) -> LoggedTrial:
                     raise ReplayError(f"{events}: a {e['kind']} event has no time (t_s: {e.get('t_s')!r})")
                 key_events.append((t, e["kind"] == "key_down", str(e.get("key", ""))))
     return LoggedTrial(d, meta, actions, positions, _numbers(p, rows, "t_s")[ends],
-                       [r["keys"] or "" for r in rows][ends], key_events, per)
+                       [r["keys"] or "" for r in rows][ends], key_events, per, len(rows))
 
 
 @dataclass
@@ -207,6 +218,8 @@ class ReplayResult:
     :param frames_dir: where they went (``None``: none asked for)
     :param wall_s: the replay's wall time [s]
     :param stopped: stopped in the window (Esc or closed) before the end
+    :param incomplete: why the log holds less than the trial wrote (:attr:`LoggedTrial.incomplete`): the
+        replay followed what is there only
     """
 
     steps: int
@@ -217,6 +230,7 @@ class ReplayResult:
     frames_dir: Path | None = None
     wall_s: float = 0.0
     stopped: bool = False
+    incomplete: str | None = None
 
     @property
     def followed_log(self) -> bool:
@@ -457,4 +471,5 @@ def _result(trial: LoggedTrial, replayed: list[np.ndarray], stopped: bool) -> Re
     diverged = float(trial.t_s[off[0]]) if len(off) else None
     if diverged is None and len(pos) != len(trial.positions_m) and not stopped:  # the env ended before the log did
         diverged = float(trial.t_s[n - 1]) if n else 0.0
-    return ReplayResult(len(pos), pos, float(dev.max()) if n else 0.0, diverged, stopped=stopped)
+    return ReplayResult(len(pos), pos, float(dev.max()) if n else 0.0, diverged, stopped=stopped,
+                        incomplete=trial.incomplete)
