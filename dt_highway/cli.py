@@ -37,7 +37,14 @@ from dt_highway.conditions import CONDITIONS, condition_config, driver_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
-from dt_highway.evaluation.calibration import calibrate, calibration_table, check_values, markdown
+from dt_highway.evaluation.calibration import (
+    calibrate,
+    calibration_table,
+    check_table_kept,
+    check_values,
+    knob_value,
+    markdown,
+)
 from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
 from dt_highway.evaluation.frames import record_frames
 from dt_highway.evaluation.intent import (
@@ -455,9 +462,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for d in drivers:
         load_driver(d)
     value_list = [v.strip() for v in values.split(",") if v.strip()]
-    _check_once(value_list, "--knob", "value", key=lambda v: _knob_value(key.strip(), v))  # 2 and 2.0 alike
+    _check_once(value_list, "--knob", "value", key=lambda v: knob_value(key.strip(), v))  # 2 and 2.0 alike
     scenario = find_file_or_default(args.scenario)
     check_values(key.strip(), value_list, scenario, args.overrides)  # one line, before the bar
+    check_table_kept(Path(args.out), key.strip(), [Path(d).stem for d in typed], value_list, args.force)
     total = len(drivers) * len(value_list) * args.trials
     with _progress(total, "calibrate", args.quiet, unit="trial") as bar:
         cells = calibrate(key.strip(), value_list, drivers, args.out, args.trials, args.seed, scenario,
@@ -470,15 +478,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(md_path.read_text(encoding="utf-8"), end="")
     print(f"wrote {csv_path}, {md_path}")
     return 0
-
-
-def _knob_value(knob: str, text: str) -> str:
-    """A ``--knob`` value as the configuration reads it (``2`` and ``2.0`` the same number)."""
-    tree: Any = parse_override(f"{knob}={text}", "--knob")
-    for part in knob.split("."):
-        tree = tree[part]
-    number = isinstance(tree, int | float) and not isinstance(tree, bool)
-    return repr(float(tree)) if number else repr(tree)
 
 
 def _check_once(items: Sequence[str], option: str, what: str, key: Callable[[str], str] = str) -> None:
@@ -1360,6 +1359,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seed of the first trial (default 1000: apart from the studies' seeds 0..)")
     p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
     p.add_argument("--out", default="runs/calibration", help="where the cells' trials and the table go")
+    p.add_argument("--force", action="store_true",
+                   help="replace the table --out holds when it is of other cells (another knob, driver or value)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_calibrate)
 

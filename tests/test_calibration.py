@@ -75,3 +75,22 @@ def test_the_log_says_which_lane_entries_were_cut_ins_aimed_at_the_ego(calibrate
     assert events and all("maneuver" in e for e in events)
     assert {e["maneuver"] for e in events} <= {"", "gentle", "dangerous"}
     assert json.dumps(events)  # plain JSON values
+
+
+def test_a_table_of_other_cells_is_replaced_only_with_force(calibrated: Path):
+    """A second calibrate into the same --out (by default always runs/calibration) replaced the table with its
+    own cells; the same cells again (a resumed run) still write it."""
+    common = ["--drivers", "agents/idm.toml", "--trials", "2", "--set", "traffic.dangerous.share=1.0",
+              "--set", "highway.duration=40", "--out", str(calibrated), "--quiet"]
+    table = (calibrated / "calibration.csv").read_bytes()
+    r = _cli("calibrate", "--knob", "traffic.dangerous.brake_mps2=4,2", *common)  # the same cells: resumed
+    assert r.returncode == 0, r.stderr
+    assert pd.read_csv(calibrated / "calibration.csv")["traffic.dangerous.brake_mps2"].tolist() == [4, 2]
+    for knob in ("traffic.dangerous.brake_mps2=2", "traffic.dangerous.share=0.5"):
+        r = _cli("calibrate", "--knob", knob, *common)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert ("calibration.csv holds the table of another calibration (traffic.dangerous.brake_mps2 = 4, 2 for "
+                "idm): pass --force") in r.stderr, r.stderr
+    r = _cli("calibrate", "--knob", "traffic.dangerous.brake_mps2=2,4", *common, "--force")
+    assert r.returncode == 0, r.stderr
+    assert (calibrated / "calibration.csv").read_bytes() == table  # the cells resumed: the first table again

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway.conditions import check_driver_action, condition_config
-from dt_highway.config import ConfigError, load_config
+from dt_highway.config import ConfigError, load_config, parse_override
 from dt_highway.metrics.safety import TTC_CAP_S, cut_in_outcomes
 from dt_highway.metrics.trial_log import Trial, load_trial
 from dt_highway.study import plan, run_study
@@ -153,6 +153,51 @@ def calibrate(
             figures = baseline_figures([load_trial(s.directory) for s in specs])
             cells.append(CalibrationCell(Path(driver).stem, v, figures))
     return cells
+
+
+def check_table_kept(out: Path, knob: str, drivers: Sequence[str], values: Sequence[str], force: bool) -> None:
+    """Refuse to replace a calibration table of other cells (another knob, driver or value) unless ``force``:
+    the same cells again (a resumed or repeated run) write the same table.
+
+    :param out: the calibration directory (``calibration.csv`` in it)
+    :param knob: the configuration key varied
+    :param drivers: the drivers' names (their files' stems), as the table's rows
+    :param values: the knob's values, as typed
+    :param force: replace any table
+    :raises ConfigError: one line naming what the table there holds
+    """
+    path = out / "calibration.csv"
+    if force or not path.is_file():
+        return
+    try:
+        held = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (ValueError, OSError):  # not a table: nothing to keep
+        return
+    if len(held.columns) < 2 or held.columns[0] != "driver":
+        return  # no calibration table
+    if held.columns[1] == knob:
+        try:
+            cells = {(d, knob_value(knob, v)) for d, v in zip(held["driver"], held[knob], strict=True)}
+        except ConfigError:  # a value edited into something --set cannot read: another table
+            cells = set()
+        if cells == {(d, knob_value(knob, v)) for d in drivers for v in values}:
+            return
+    column = held.columns[1]
+    there = f"{column} = {', '.join(dict.fromkeys(held[column]))} for {', '.join(dict.fromkeys(held['driver']))}"
+    raise ConfigError(f"{path} holds the table of another calibration ({there}): pass --force to replace it, "
+                      "or another --out")
+
+
+def knob_value(knob: str, text: str) -> str:
+    """A ``--knob`` value as the configuration reads it, to compare (``2`` and ``2.0`` the same number).
+
+    :raises ConfigError: on a value ``--set`` cannot parse
+    """
+    tree: Any = parse_override(f"{knob}={text}", "--knob")
+    for part in knob.split("."):
+        tree = tree[part]
+    number = isinstance(tree, int | float) and not isinstance(tree, bool)
+    return repr(float(tree)) if number else repr(tree)
 
 
 TABLE_COLUMNS = {
