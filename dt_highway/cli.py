@@ -44,6 +44,7 @@ from dt_highway.evaluation.calibration import (
     check_values,
     knob_value,
     markdown,
+    split_values,
 )
 from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
 from dt_highway.evaluation.frames import record_frames
@@ -461,7 +462,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                               "table's rows and cell folders are named after the file, so rename one")
     for d in drivers:
         load_driver(d)
-    value_list = [v.strip() for v in values.split(",") if v.strip()]
+    value_list = split_values(values)
     _check_once(value_list, "--knob", "value", key=lambda v: knob_value(key.strip(), v))  # 2 and 2.0 alike
     scenario = find_file_or_default(args.scenario)
     check_values(key.strip(), value_list, scenario, args.overrides)  # one line, before the bar

@@ -94,3 +94,22 @@ def test_a_table_of_other_cells_is_replaced_only_with_force(calibrated: Path):
     r = _cli("calibrate", "--knob", "traffic.dangerous.brake_mps2=2,4", *common, "--force")
     assert r.returncode == 0, r.stderr
     assert (calibrated / "calibration.csv").read_bytes() == table  # the cells resumed: the first table again
+
+
+def test_knob_values_split_outside_brackets_and_a_set_of_the_knob_is_refused():
+    from dt_highway.config import ConfigError
+    from dt_highway.evaluation.calibration import check_values, split_values
+
+    assert split_values(" 2, 3,4 ") == ["2", "3", "4"]
+    assert split_values("[1.0,2.0],[1.0,3.0]") == ["[1.0,2.0]", "[1.0,3.0]"]  # was four values, none a list
+    assert split_values("'a,b',c") == ["'a,b'", "c"]
+    for bad, words in (("2,,3", "an empty value between commas"), ("2,", "an empty value"),
+                       ("[1,2", "an unclosed bracket"), ("'a", "an unclosed quote")):
+        with pytest.raises(ConfigError, match=words):
+            split_values(bad)
+    knob = "traffic.dangerous.brake_mps2"
+    for override in (f"{knob}=5", "traffic.dangerous={brake_mps2=5}"):  # the knob replaced it in every cell
+        with pytest.raises(ConfigError, match=r"sets the key --knob varies \(traffic.dangerous.brake_mps2\)"):
+            check_values(knob, ["2", "3"], None, [override])
+    check_values(knob, ["2", "3"], None, ["traffic.dangerous={share=1.0}", "traffic.dangerous.share=0.5"])
+    check_values("twin.intention.horizons_s", ["[1.0,2.0]", "[1.0,3.0]"], None, ["twin.intention.operating_horizon_s=1"])

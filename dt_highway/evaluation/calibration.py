@@ -101,14 +101,48 @@ def baseline_figures(trials: Sequence[Trial]) -> dict[str, float]:
     return out
 
 
+def split_values(text: str) -> list[str]:
+    """The values of ``--knob KEY=V1,V2,...``: split at the commas outside brackets and quotes, so a list
+    or a quoted string is one value (``[1.0,2.0],[1.0,3.0]`` is two).
+
+    :raises ConfigError: on an empty value (``2,,3``) or an unclosed bracket or quote
+    """
+    values, depth, quote, start = [], 0, "", 0
+    for i, ch in enumerate(text + ","):
+        if quote:
+            quote = "" if ch == quote else quote
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            values.append(text[start:i].strip())
+            start = i + 1
+    if quote or depth:
+        raise ConfigError(f"--knob values {text!r}: an unclosed {'quote' if quote else 'bracket'}")
+    if "" in values:
+        raise ConfigError(f"--knob values {text!r}: an empty value between commas (give each value once, e.g. 2,3,4)")
+    return values
+
+
 def check_values(knob: str, values: Sequence[str], scenario: str | None, overrides: Sequence[str]) -> None:
-    """Refuse, before any trial runs, a knob or value the configuration refuses, or a configuration no
-    driver can drive (:func:`~dt_highway.conditions.check_driver_action`).
+    """Refuse, before any trial runs, a knob or value the configuration refuses, a ``--set`` of the knob
+    (or of a table that sets it), or a configuration no driver can drive
+    (:func:`~dt_highway.conditions.check_driver_action`).
 
     :raises ConfigError: one line
     """
     if not values:
         raise ConfigError("calibrate needs at least one value")
+    for text in overrides:  # the knob's value would replace it in every cell, without a word
+        tree: Any = parse_override(text)
+        for part in knob.split("."):
+            tree = tree.get(part) if isinstance(tree, dict) else None
+        if tree is not None:
+            raise ConfigError(f"--set {text.strip()} sets the key --knob varies ({knob}): drop it, or give the value "
+                              "in --knob")
     for v in values:
         check_driver_action(load_config(scenario, [*overrides, f"{knob}={v}"], condition_config("baseline")))
 
