@@ -105,7 +105,7 @@ def split_values(text: str) -> list[str]:
     """The values of ``--knob KEY=V1,V2,...``: split at the commas outside brackets and quotes, so a list
     or a quoted string is one value (``[1.0,2.0],[1.0,3.0]`` is two).
 
-    :raises ConfigError: on an empty value (``2,,3``) or an unclosed bracket or quote
+    :raises ConfigError: on an empty value (``2,,3``), unbalanced brackets or an unclosed quote
     """
     values, depth, quote, start = [], 0, "", 0
     for i, ch in enumerate(text + ","):
@@ -121,7 +121,7 @@ def split_values(text: str) -> list[str]:
             values.append(text[start:i].strip())
             start = i + 1
     if quote or depth:
-        raise ConfigError(f"--knob values {text!r}: an unclosed {'quote' if quote else 'bracket'}")
+        raise ConfigError(f"--knob values {text!r}: {'an unclosed quote' if quote else 'unbalanced brackets'}")
     if "" in values:
         raise ConfigError(f"--knob values {text!r}: an empty value between commas (give each value once, e.g. 2,3,4)")
     return values
