@@ -103,9 +103,9 @@ def baseline_figures(trials: Sequence[Trial]) -> dict[str, float]:
 
 def split_values(text: str) -> list[str]:
     """The values of ``--knob KEY=V1,V2,...``: split at the commas outside brackets and quotes, so a list
-    or a quoted string is one value (``[1.0,2.0],[1.0,3.0]`` is two).
+    or a quoted string is one value (``[1.0,2.0],[1.0,3.0]`` is two); empty ones are left out.
 
-    :raises ConfigError: on an empty value (``2,,3``), unbalanced brackets or an unclosed quote
+    :raises ConfigError: on unbalanced brackets or an unclosed quote
     """
     values, depth, quote, start = [], 0, "", 0
     for i, ch in enumerate(text + ","):
@@ -122,9 +122,7 @@ def split_values(text: str) -> list[str]:
             start = i + 1
     if quote or depth:
         raise ConfigError(f"--knob values {text!r}: {'an unclosed quote' if quote else 'unbalanced brackets'}")
-    if "" in values:
-        raise ConfigError(f"--knob values {text!r}: an empty value between commas (give each value once, e.g. 2,3,4)")
-    return values
+    return [v for v in values if v]  # "2,3," is 2 and 3, as in the other comma-separated options
 
 
 def check_values(knob: str, values: Sequence[str], scenario: str | None, overrides: Sequence[str]) -> None:
