@@ -110,6 +110,14 @@ def test_a_key_held_through_the_countdown_acts_and_is_logged_at_t0_and_pauses_ar
     assert all("wall_time" in e for e in trial.events)  # every event, the recorder's too
 
 
+def test_a_script_built_in_code_that_ends_paused_ends_the_trial(tmp_path):
+    """KeyScript.parse refuses a file that ends paused; one built in code stopped the trial for ever."""
+    script = KeyScript([KeyEvent(0.3, True, "P"), KeyEvent(0.4, False, "P")])
+    result = run_drive(_opts(tmp_path, keys_from=script), say=lambda s: None)
+    trial = load_trial(result["directory"])
+    assert trial.meta["status"] == "aborted" and trial.meta["end_reason"] == "the key script ended with the trial paused"
+
+
 def _interactive(tmp_path, plan, *, condition="sham", label="Trial 2", duration_s=30.0, captions=None):
     """Run an interactive trial; ``plan[n]`` lists the pygame events posted after the n-th frame shown."""
     shown = []

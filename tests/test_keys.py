@@ -39,6 +39,9 @@ def test_key_script_parses_and_replays_in_time_order():
     ("2 down UP\n1 up UP", "keys.txt:2: times must not go back"),
     ("1 hold UP", "action must be 'down' or 'up'"),
     ("1 down SPACE", "unknown key 'SPACE' (allowed: UP, DOWN, LEFT, RIGHT, P, ESC)"),
+    # P toggles the pause: the headless trial waited for ever
+    ("0.5 down P\n0.6 up P", "keys.txt: P is pressed 1 time, the last at 0.5 s: the script ends with the trial paused"),
+    ("0.5 down P\n1 down P\n2 down P", "keys.txt: P is pressed 3 times, the last at 2 s"),
 ])
 def test_bad_key_scripts_name_the_line(text, message):
     with pytest.raises(KeyScriptError, match=message.replace("(", r"\(").replace(")", r"\)").replace("|", r"\|")):

@@ -519,6 +519,8 @@ class _Trial:
                 if script is not None and self.paused:  # a script's pause lasts in wall time
                     for ev in script.due(self.t_sim + time.monotonic() - self._pause_start):
                         self.key_event(ev)
+                    if self.paused and script.finished:  # no key left to end it (a script built in code)
+                        self.stop("the key script ended with the trial paused")
                 if self.done:
                     break
                 now = time.monotonic() - self.wall0 - self._paused_s

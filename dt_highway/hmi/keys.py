@@ -165,7 +165,8 @@ class KeyScript:
     def parse(cls, text: str, source: str = "<keys>") -> KeyScript:
         """Read ``time down|up KEY`` lines (``#`` starts a comment).
 
-        :raises KeyScriptError: naming the file and line of the first bad one
+        :raises KeyScriptError: naming the file and line of the first bad one, or a script that ends with
+            the trial paused (``P`` pressed an odd number of times)
         """
         events = []
         last = -math.inf
@@ -198,6 +199,11 @@ class KeyScript:
                                      f"(the countdown; got {key} at {t:g} s)")
             events.append(KeyEvent(t, action == "down", key))
             last = t
+        pauses = [e for e in events if e.down and e.key == "P"]
+        if len(pauses) % 2:  # P toggles the pause: the trial would wait for a key the script never presses
+            times = f"{len(pauses)} time{'s' if len(pauses) > 1 else ''}"
+            raise KeyScriptError(f"{source}: P is pressed {times}, the last at {pauses[-1].t_s:g} s: the script ends "
+                                 "with the trial paused, which it would wait in for ever (press P again)")
         return cls(events)
 
     @classmethod
