@@ -692,6 +692,9 @@ def cmd_camera(args: argparse.Namespace) -> int:
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
     out = Path(args.out)
+    if out.is_dir():  # --force (else refused before): the earlier frames go, so the folder matches config.json
+        for frame in (f for f in out.iterdir() if CAMERA_FRAME.fullmatch(f.name)):
+            frame.unlink()
     with _progress(args.frames, "camera", args.quiet) as bar:
         result = record_frames(cfg, args.frames, args.seed, out, args.every, args.raw, progress=bar.update)
     (out / "config.json").write_text(dump_json(cfg.to_dict()) + "\n")
@@ -712,6 +715,9 @@ def cmd_matching(args: argparse.Namespace) -> int:
         raise ConfigError(f"--detectors takes simulated and/or learned, comma-separated, each once (got '{args.detectors}')")
     if not cfg.twin.enabled:
         raise ConfigError("the matching benchmark identifies the twin's vehicles: drop --set twin.enabled=false")
+    if args.sweep and len(kinds) > 1:
+        raise ConfigError(f"--sweep runs with one detector: give --detectors {kinds[0]} or {kinds[1]} with it "
+                          f"(got '{args.detectors}')")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table: dict[str, Any] = {}
@@ -742,11 +748,12 @@ def cmd_matching(args: argparse.Namespace) -> int:
         n_runs = 4 + 4 + 3 + 1
         with _progress(args.frames * n_runs, "sweep", args.quiet) as bar:
             try:
-                rows = run_sweep(cfg, args.frames, args.seed, progress=bar.update)
+                rows = run_sweep(merge(cfg, {"detector": {"kind": kinds[0]}}), args.frames, args.seed,
+                                 progress=bar.update)
             except ValueError as exc:  # a sweep setting that shows too few connected vehicles
                 raise ConfigError(str(exc)) from None
         write_sweep(rows, out)
-        print(f"wrote sweep.csv, sweep.json, sweep.png ({cfg.detector.kind} detector) to {out}")
+        print(f"wrote sweep.csv, sweep.json, sweep.png ({kinds[0]} detector) to {out}")
     if len(kinds) == 1:
         print(f"wrote {written} to {out}")
     return 0
@@ -1130,6 +1137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=2, help="episodes (default 2)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     p.add_argument("--out", default="runs/run", help="output directory (default runs/run)")
+    p.add_argument("--force", action="store_true", help="replace the outputs of an earlier run --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
 
@@ -1233,6 +1241,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--every", type=_positive(int, "--every"), default=1, help="policy steps between frames (default 1)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     p.add_argument("--raw", action="store_true", help="also write float depth [m] and instance ids as .npz")
+    p.add_argument("--force", action="store_true",
+                   help="replace the frames of an earlier camera run --out holds (they are deleted first)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_camera)
 
@@ -1244,7 +1254,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep", action="store_true",
                    help="also sweep GNSS noise {0.5,1,2,3} m, latency {0,0.1,0.3,0.5} s, rate {10,5,1} Hz")
     p.add_argument("--detectors", metavar="KINDS",
-                   help="detectors to compare, e.g. simulated,learned (default: the config's detector.kind)")
+                   help="detectors to compare, e.g. simulated,learned (default: the config's detector.kind); "
+                   "--sweep runs with one")
+    p.add_argument("--force", action="store_true", help="replace the outputs of an earlier matching run --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_matching)
 
@@ -1537,13 +1549,32 @@ def _check_out(args: argparse.Namespace) -> None:
             raise ConfigError(f"{option} {value}: cannot write in {existing} ({exc.strerror or exc})") from None
 
 
+EARLIER_OUTPUTS = {
+    "run": ("twin_eval.json", "config.json"),
+    "camera": ("frames.jsonl", "config.json"),
+    "matching": ("summary.json", "detectors.json", "sweep.json", "config.json", "simulated/config.json",
+                 "learned/config.json"),
+}
+"""The files that say a folder holds an earlier run of a command whose ``--out`` is a folder it writes
+fixed names into (``study``, ``calibrate``, ``session`` and ``drive`` resume instead; ``rl-compare``
+checks its own)"""
+
+CAMERA_FRAME = re.compile(r"(rgb|depth|instance|boxes|overlay)_\d{4,}\.png|frame_\d{4,}\.npz")
+"""A frame ``dt-highway camera`` writes"""
+
+
 def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target: Path) -> None:
-    """A JSON result (``--out FILE``) or replay frames already there are replaced only with ``--force``.
+    """A JSON result (``--out FILE``), replay frames, or the outputs of an earlier ``run``, ``camera`` or
+    ``matching`` already there are replaced only with ``--force``.
 
     :raises ConfigError: one line naming what is there and how to replace it
     """
     if getattr(args, "force", False):
         return
+    held = [name for name in EARLIER_OUTPUTS.get(args.command, ()) if (target / name).is_file()]
+    if attr == "out" and held:
+        raise ConfigError(f"{option} {target} holds the outputs of an earlier {args.command} ({held[0]}): pass --force "
+                          "to replace them, or another --out")
     if attr == "out_json" and target.is_file():
         raise ConfigError(f"{option} {target} exists: pass --force to replace it, or name another file")
     if attr == "frames_out" and (frames := replay_frames_in(target)):

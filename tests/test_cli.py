@@ -115,6 +115,32 @@ def test_a_json_result_already_there_is_replaced_only_with_force(tmp_path):
     assert "precision" in json.loads(earlier.read_text())
 
 
+def test_run_camera_and_matching_replace_an_earlier_output_only_with_force(tmp_path):
+    """Each rewrote its --out without a word (camera left the earlier run's other frames beside the new ones)."""
+    cam = tmp_path / "cam"
+    assert main(["camera", "--out", str(cam), "--frames", "2", "--quiet", *TINY]) == 0
+    before = sorted(p.name for p in cam.iterdir())
+    _one_line_error(_cli("camera", "--out", str(cam), "--frames", "1", "--quiet", *TINY),
+                    f"--out {cam} holds the outputs of an earlier camera (frames.jsonl): pass --force")
+    assert sorted(p.name for p in cam.iterdir()) == before and "rgb_0001.png" in before
+    (cam / "notes.txt").write_text("mine")
+    assert main(["camera", "--out", str(cam), "--frames", "1", "--force", "--quiet", *TINY]) == 0
+    assert sorted(p.name for p in cam.iterdir()) == ["boxes_0000.png", "config.json", "depth_0000.png", "frames.jsonl",
+                                                     "instance_0000.png", "notes.txt", "rgb_0000.png"]
+    run = tmp_path / "run"
+    (run / "twin_eval.json").parent.mkdir()
+    (run / "twin_eval.json").write_text("{}")
+    _one_line_error(_cli("run", "--out", str(run), "--quiet", *TINY),
+                    f"--out {run} holds the outputs of an earlier run (twin_eval.json): pass --force")
+    (tmp_path / "m" / "learned").mkdir(parents=True)
+    (tmp_path / "m" / "learned" / "config.json").write_text("{}")
+    _one_line_error(_cli("matching", "--out", str(tmp_path / "m"), "--quiet", *TINY),
+                    "holds the outputs of an earlier matching (learned/config.json)")
+    # the sweep ran with the scenario's detector whatever --detectors said
+    _one_line_error(_cli("matching", "--out", str(tmp_path / "m2"), "--detectors", "simulated,learned", "--sweep"),
+                    "--sweep runs with one detector: give --detectors simulated or learned with it")
+
+
 def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("twin-eval", "--set", "twin.enabled=false", "--quiet"), "twin.enabled")
     _one_line_error(_cli("twin-eval", "--set", "traffic.driver_types=false", "--quiet"), "driver_types")
