@@ -94,15 +94,19 @@ def check_resume(out: str | Path, specs: Sequence[TrialSpec]) -> dict[str, dict[
     or scenario) from those it was started with (its ``study.json``).
 
     :return: the trials on record, by directory
-    :raises ConfigError: naming the first trial that differs
+    :raises ConfigError: naming the first trial that differs, or a ``study.json`` that cannot be read
     """
     record = Path(out) / "study.json"
     if not record.exists():
         return {}
     try:
         before = {t["directory"]: t for t in json.loads(record.read_text())["trials"]}
-    except (OSError, ValueError, KeyError, TypeError):
-        return {}  # an unreadable record: nothing to compare with
+        if not all(isinstance(t, dict) and {"seed", "overrides", "driver", "scenario"} <= t.keys() for t in before.values()):
+            raise ValueError("a trial without its settings")
+    except (OSError, ValueError, KeyError, TypeError) as err:  # resumed, it would be written anew without its trials
+        why = err.strerror if isinstance(err, OSError) else "not the record of a study's trials"
+        raise ConfigError(f"{record} cannot be read ({why}): it records the trials the study was started with, so "
+                          "mend or move it to go on (the trials' own meta.json files hold their settings)") from None
 
     def key(t: dict[str, Any]) -> dict[str, Any]:
         name = lambda p: Path(p).name if p else None  # noqa: E731

@@ -144,3 +144,18 @@ def test_a_trial_whose_action_no_driver_gives_fails_in_one_line(tmp_path):
     result = run_trial(spec)
     assert result["status"] == "failed" and not (tmp_path / "t" / "steps.csv").exists()
     assert result["error"].startswith("highway.action.type = DiscreteMetaAction: drivers act through the Driver action")
+
+
+def test_a_study_json_that_cannot_be_read_is_refused_not_written_anew(tmp_path):
+    """Resumed, a damaged study.json was replaced by one without the trials of earlier runs; a record of a
+    trial without its settings was a KeyError."""
+    from dt_highway.study import check_resume
+
+    specs = plan(tmp_path, "agents/idm.toml", ["baseline"], 1, 0, overrides=SHORT)
+    for text in ("[", '{"trials": 3}', '{"trials": [{"directory": "x"}]}'):
+        (tmp_path / "study.json").write_text(text)
+        with pytest.raises(ConfigError, match=r"study.json cannot be read \(not the record of a study's trials\)"):
+            run_study(specs, tmp_path)
+        assert (tmp_path / "study.json").read_text() == text
+    (tmp_path / "study.json").unlink()
+    assert check_resume(tmp_path, specs) == {}  # no record: a new study
