@@ -214,7 +214,12 @@ def test_a_seed_that_is_no_int_is_refused_in_one_line_and_changes_nothing(small_
         with pytest.raises(gym.error.Error) as err:
             env.reset(seed=bad)
         assert "reset(seed=...) must be a Python int >= 0" in str(err.value) and "\n" not in str(err.value)
+    for bad in (5, {"bogus": 1}, {"config": {}, "seed": 3}):  # 5 was highway-env's TypeError, then a broken env
+        with pytest.raises(gym.error.Error, match=r"^reset\(options=...\) takes None or \{'config': \{...\}\}"):
+            env.reset(seed=2, options=bad)
     assert env.unwrapped._world_seed == 11  # the refused resets changed nothing
+    env.reset(options={"config": {}})
+    env.step(1)
     env.close()
 
 
@@ -628,10 +633,18 @@ def test_the_offscreen_rendering_variable_gives_highway_envs_deprecation_warning
     ({"type": "DiscreteMetaAction"}, 1.5, "one integer 0..4"),
     ({"type": "DiscreteMetaAction"}, "LEFT", "one integer 0..4"),
     ({"type": "DiscreteMetaAction"}, np.array([1, 2]), "one integer 0..4"),
-    ({"type": "ContinuousAction"}, np.array([np.nan, np.nan]), "2 finite numbers"),
-    ({"type": "ContinuousAction"}, np.array([0.1]), "2 finite numbers"),
-    ({"type": "ContinuousAction"}, "ab", "2 finite numbers"),
-    ({"type": "Driver"}, [np.inf, 0.0], "2 finite numbers"),
+    ({"type": "ContinuousAction"}, np.array([np.nan, np.nan]), "2 finite numbers in shape \\(2,\\)"),
+    ({"type": "ContinuousAction"}, np.array([0.1]), "2 finite numbers in shape \\(2,\\)"),
+    ({"type": "ContinuousAction"}, "ab", "2 finite numbers in shape \\(2,\\)"),
+    ({"type": "Driver"}, [np.inf, 0.0], "2 finite numbers in shape \\(2,\\)"),
+    # each went past the check and failed deep in highway-env (or, "1", was taken as 1)
+    ({"type": "DiscreteMetaAction"}, np.array([3]), "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, [1], "one integer 0..4"),
+    ({"type": "DiscreteMetaAction"}, "1", "one integer 0..4"),
+    ({"type": "DiscreteAction"}, "1", "one integer 0..\\d+"),
+    ({"type": "DiscreteAction"}, np.array([2]), "one integer 0..\\d+"),
+    ({"type": "ContinuousAction"}, np.array([[0.1, 0.2]]), "2 finite numbers in shape \\(2,\\)"),
+    ({"type": "ContinuousAction"}, [["0.5", "0"]], "2 finite numbers in shape \\(2,\\)"),
 ])
 def test_an_action_the_space_cannot_hold_is_one_line_and_leaves_the_env_as_it_was(small_config, action_type, bad, takes):
     env = gym.make("dt-highway-v0", config={**small_config, "highway": {**small_config.get("highway", {}),
@@ -641,7 +654,7 @@ def test_an_action_the_space_cannot_hold_is_one_line_and_leaves_the_env_as_it_wa
     with pytest.raises(ValueError, match=f"is not in the {action_type['type']}\\w* action space .*: {takes}$"):
         env.step(bad)
     assert np.array_equal(env.unwrapped.vehicle.position, before) and env.unwrapped.time == clock  # nothing changed
-    good = 1 if action_type["type"] == "DiscreteMetaAction" else np.zeros(2)
+    good = 1 if action_type["type"] in ("DiscreteMetaAction", "DiscreteAction") else np.zeros(2)
     obs, reward, *_ = env.step(good)
     assert np.isfinite(reward) and np.isfinite(np.asarray(obs, dtype=float)).all()
     env.close()

@@ -10,6 +10,7 @@ through it.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -31,9 +32,9 @@ def check_action(space: spaces.Space, action: Any, kind: str = "") -> None:
     """Refuse, in one line, an action the env's action space cannot hold, before highway-env acts
     on it (it would fail deep inside, or carry a NaN into the ego's state for good).
 
-    A ``Discrete`` space takes one integer in its range (a float only when whole: ``2.0``); a
-    ``Box`` as many finite numbers as its shape holds (outside the bounds is clipped by the action
-    type, as highway-env does). Other spaces are left to their action type.
+    A ``Discrete`` space takes one integer in its range, a scalar (a float only when whole: ``2.0``;
+    not a string, not ``[2]``); a ``Box`` finite numbers in its shape (outside the bounds is clipped by
+    the action type, as highway-env does). Other spaces are left to their action type.
 
     :param space: the env's action space
     :param action: what was passed to ``step``
@@ -42,21 +43,21 @@ def check_action(space: spaces.Space, action: Any, kind: str = "") -> None:
     """
     name = f"{kind} " if kind else ""
     try:
-        a = np.asarray(action, dtype=float)
-    except (TypeError, ValueError):
+        raw = np.asarray(action)
+        a = raw.astype(float) if raw.dtype.kind in "biuf" else None  # "1" is no number
+    except (TypeError, ValueError):  # a ragged list
         a = None
     if isinstance(space, spaces.Discrete):
         first, last = int(space.start), int(space.start + space.n - 1)
-        ok = (a is not None and a.size == 1 and np.isfinite(a).all() and float(a.reshape(-1)[0]).is_integer()
-              and first <= a.reshape(-1)[0] <= last)
+        ok = (a is not None and a.ndim == 0 and math.isfinite(a) and float(a).is_integer() and first <= a <= last)
         if not ok:
             raise ValueError(f"action {action!r} is not in the {name}action space {space}: "
                              f"one integer {first}..{last}")
     elif isinstance(space, spaces.Box):
         size = int(np.prod(space.shape))
-        if a is None or a.size != size or not np.isfinite(a).all():
+        if a is None or a.shape != space.shape or not np.isfinite(a).all():
             raise ValueError(f"action {action!r} is not in the {name}action space {space}: "
-                             f"{size} finite number{'s' if size > 1 else ''}")
+                             f"{size} finite number{'s' if size > 1 else ''} in shape {space.shape}")
 
 
 class DrivenVehicle(ControlledVehicle):

@@ -414,8 +414,11 @@ class DTHighwayEnv(HighwayEnv):
         :param seed: seed of every random generator of the episode: a Python ``int`` >= 0, as Gymnasium's
         :param options: ``{"config": {...}}`` deep-merges a partial configuration first
         :return: observation and info
-        :raises gymnasium.error.Error: a ``seed`` that is no Python ``int`` >= 0 (one line, before any change)
+        :raises gymnasium.error.Error: a ``seed`` that is no Python ``int`` >= 0, or ``options`` with another key
+            than ``config`` (one line, before any change)
         """
+        if options is not None and (not isinstance(options, dict) or set(options) - {"config"}):
+            raise gym_error.Error(f"reset(options=...) takes None or {{'config': {{...}}}} (got {options!r})")
         if seed is not None:
             if not isinstance(seed, int) or seed < 0:  # Gymnasium's own rule, said before int() truncates 1.5
                 raise gym_error.Error(f"reset(seed=...) must be a Python int >= 0 (got {seed!r} of type "
