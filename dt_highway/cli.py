@@ -213,10 +213,22 @@ def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]
 
 
 # ----------------------------------------------------------------------------- twin-eval
+MIN_OBSERVED_S = 30.0
+"""``twin-eval``'s default ``--min-observed-s``: judge only drivers the twin observed this long [s]"""
+
+
 def cmd_twin_eval(args: argparse.Namespace) -> int:
-    if args.population is not None:  # before the --set overrides: a --set of the same key wins
+    if args.population is not None:
+        for text in args.overrides:
+            set_to = (parse_override(text).get("traffic") or {}).get("population")
+            if set_to is not None and set_to != args.population:
+                raise ConfigError(f"--population {args.population} and --set {text.strip()} name two populations: "
+                                  "give one")
         args.overrides = [f"traffic.population={args.population}", *args.overrides]
     if args.intent:
+        if args.min_observed_s is not None:
+            raise ConfigError("--min-observed-s goes with the tags' evaluation (without --intent): the intention is "
+                              "scored at every estimate")
         return _twin_eval_intent(args)
     given = [flag for flag, on in (("--sweep", args.sweep), ("--driver", args.driver is not None),
                                    ("--oracle", args.oracle is not None),
@@ -229,7 +241,7 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     episodes = args.episodes or 3
     steps = episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
-        result = evaluate_twin(cfg, episodes, args.seed, args.min_observed_s, progress=bar.update)
+        result = evaluate_twin(cfg, episodes, args.seed, args.min_observed_s or MIN_OBSERVED_S, progress=bar.update)
     if args.json:
         print(dump_json(result))
     else:
@@ -1147,8 +1159,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=_positive(int, "--episodes"),
                    help=f"episodes (default 3; with --intent {INTENT_EPISODES})")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first episode (default 0)")
-    p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"), default=30.0,
-                   help="judge only drivers the twin observed this long [s] (default 30)")
+    p.add_argument("--min-observed-s", type=_positive(float, "--min-observed-s"),
+                   help=f"judge only drivers the twin observed this long [s] (default {MIN_OBSERVED_S:g}; not with "
+                   "--intent)")
     p.add_argument("--population", choices=POPULATIONS,
                    help="driver population, shortcut for --set traffic.population=...; continuum adds the ROC AUCs "
                    "and the precision at recall >= 0.80 (default: the configuration's, two_class)")

@@ -602,6 +602,12 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
         err = capsys.readouterr().err
         assert f"twin.intention.model = 'physics' ({option}) has no weights to train" in err and err.count("\n") == 1
     assert not Path("x.npz").exists()
+    # each was silently ignored or replaced
+    assert main(["twin-eval", "--intent", "--min-observed-s", "1", "--quiet", *TINY]) == 2
+    assert "--min-observed-s goes with the tags' evaluation (without --intent)" in capsys.readouterr().err
+    assert main(["twin-eval", "--population", "continuum", "--set", "traffic.population=two_class", "--quiet", *TINY]) == 2
+    assert ("--population continuum and --set traffic.population=two_class name two populations: give one"
+            in capsys.readouterr().err)
 
 
 def test_train_intent_refuses_to_replace_weights_or_learn_from_nothing(tmp_path, capsys):
