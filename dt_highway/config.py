@@ -1006,7 +1006,10 @@ def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
 
 
 def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
-    """Move highway-env keys given at the top level into the ``highway`` section."""
+    """Move highway-env keys given at the top level into the ``highway`` section.
+
+    :raises ConfigError: on a key given there and in the section with another value
+    """
     if not isinstance(tree, dict):
         raise ConfigError(f"configuration must be a table of keys (got {type(tree).__name__})")
     out: dict[str, Any] = {}
@@ -1020,6 +1023,10 @@ def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
         hw = out.get("highway", {})
         if not isinstance(hw, dict):
             raise ConfigError(f"highway must be a table of keys (got {hw!r})")
+        twice = [k for k in lifted if k in hw and hw[k] != lifted[k]]
+        if twice:  # the top-level value won without a word
+            k = twice[0]
+            raise ConfigError(f"{k} is given at the top level ({lifted[k]!r}) and as highway.{k} ({hw[k]!r}): give it once")
         out["highway"] = deep_merge(hw, lifted)
     return out
 

@@ -318,6 +318,16 @@ def test_values_that_were_silently_ignored_or_meaningless_are_refused():
     assert load_config(None, ["twin.intention.horizons_s=[1.0,2.5,3.0]", "overlay.horizon_s=2.5"]).overlay.horizon_s == 2.5
 
 
+def test_a_highway_key_given_at_the_top_level_and_in_its_section_is_given_once():
+    """The top-level value won without a word."""
+    with pytest.raises(ConfigError, match=r"^vehicles_count is given at the top level \(5\) and as "
+                       r"highway.vehicles_count \(30\): give it once$"):
+        validate({"vehicles_count": 5, "highway": {"vehicles_count": 30}})
+    assert validate({"vehicles_count": 5, "highway": {"vehicles_count": 5, "lanes_count": 3}}).highway.vehicles_count == 5
+    with pytest.raises(ConfigError, match="give it once"):
+        gym.make("dt-highway-v0", config={"highway": {"lanes_count": 3}, "lanes_count": 2})
+
+
 @pytest.mark.parametrize("override, words", [
     # each was accepted and then a traceback, a crash, a hang or nan (a sweep of every key's edge values)
     ("highway.collision_reward=0.5", "normalize_reward needs collision_reward < high_speed_reward + right_lane_reward"),
