@@ -396,6 +396,19 @@ def _steps_per_s(env: gym.Env, seed: int, steps: int, action: int = 1) -> float:
     return steps / (time.perf_counter() - t0)
 
 
+def deviation_steps(deviation_s: float) -> int:
+    """The decisions (env steps) of :func:`bench_sim`'s deviation run of ``deviation_s`` [s].
+
+    :raises ValueError: when that is none (one line naming the least ``deviation_s``)
+    """
+    f = SIM_SCENARIO["policy_frequency"]
+    n = int(round(deviation_s * f))
+    if n < 1:
+        raise ValueError(f"--deviation-s must be at least {0.5 / f:g} s: the deviation run compares whole decisions, "
+                         f"{f:g} a second (got {deviation_s:g})")
+    return n
+
+
 def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats: int = 1,
               profile: str | None = None) -> dict[str, Any]:
     """Stock ``highway-v0`` against our env on highway-v0's scenario, in one process.
@@ -410,11 +423,14 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
 
     :param steps: env steps per measurement [-]
     :param seed: reset seed
-    :param deviation_s: simulated time of the deviation run [s]
+    :param deviation_s: simulated time of the deviation run [s], in whole decisions (one a second)
     :param repeats: measurements per env (the best is kept) [-]
     :param profile: write a cProfile of one run of our default env to this file
-    :return: steps/s per env, ratios to stock, the deviation [m], the ADAS pipeline's step time
+    :return: steps/s per env, ratios to stock, the deviation [m] over ``deviation_sim_s`` (``deviation_s``
+        rounded to whole decisions), the ADAS pipeline's step time
+    :raises ValueError: on a ``deviation_s`` shorter than half a decision (no step to compare)
     """
+    n = deviation_steps(deviation_s)
     hw = {**SIM_SCENARIO, "duration": 10_000}
     ours_hw = {**hw, "road_length": 10_000.0}
     envs: dict[str, Any] = {
@@ -437,7 +453,6 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
     stock, ours = envs["stock_highway_v0"], envs["ours_plain_idm"]
     stock.reset(seed=seed)
     ours.reset(seed=seed)
-    n = int(round(deviation_s * SIM_SCENARIO["policy_frequency"]))
     worst, same_count = 0.0, True
     for _ in range(n):
         stock.step(1)
@@ -457,7 +472,7 @@ def bench_sim(steps: int = 30, seed: int = 0, deviation_s: float = 30.0, repeats
         "adas_step_ms": round(1000.0 / rates["ours_adas_pipeline"], 1),
         "stock_step_ms": round(1000.0 / stock_rate, 1),
         "max_deviation_m": worst if same_count else None,
-        "deviation_sim_s": deviation_s,
+        "deviation_sim_s": n / SIM_SCENARIO["policy_frequency"],
         "same_vehicles": same_count,
         "scenario": {**SIM_SCENARIO, "steps": steps, "seed": seed, "ego_action": "IDLE"},
         "target_ratio": 5.0,

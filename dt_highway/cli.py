@@ -32,6 +32,7 @@ from dt_highway.bench import (
     bench_memory,
     bench_sim,
     bench_train,
+    deviation_steps,
 )
 from dt_highway.conditions import CONDITIONS, condition_config, driver_config
 from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
@@ -1057,6 +1058,10 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_bench_sim(args: argparse.Namespace) -> int:
+    try:
+        deviation_steps(args.deviation_s)  # before the throughput runs
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     result = bench_sim(args.steps, args.seed, args.deviation_s, args.repeats, args.profile)
     if args.json:
         print(dump_json(result))
@@ -1476,6 +1481,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=_positive(int, "--repeats"), default=1,
                    help="measurements per env, best kept (default 1)")
     p.add_argument("--profile", metavar="FILE", help="also write a cProfile of our env (driver types) to FILE")
+    p.add_argument("--force", action="store_true", help="replace the file --profile names if it exists")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_sim)
     p = bsub.add_parser("train", help="RL training steps/s: today's path and the fast path (lean env, worker processes)")
@@ -1542,7 +1548,7 @@ def _check_out(args: argparse.Namespace) -> None:
     :raises ConfigError: one line naming the option, the path and why
     """
     for attr, option in (("out", "--out"), ("out_json", "--out"), ("frames_out", "--frames-out"),
-                         ("screenshots", "--screenshots")):
+                         ("screenshots", "--screenshots"), ("profile", "--profile")):
         value = getattr(args, attr, None)
         if not isinstance(value, str):
             continue
@@ -1588,7 +1594,7 @@ def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target
     if attr == "out" and held:
         raise ConfigError(f"{option} {target} holds the outputs of an earlier {args.command} ({held[0]}): pass --force "
                           "to replace them, or another --out")
-    if attr == "out_json" and target.is_file():
+    if attr in ("out_json", "profile") and target.is_file():
         raise ConfigError(f"{option} {target} exists: pass --force to replace it, or name another file")
     if attr == "frames_out" and (frames := replay_frames_in(target)):
         raise ConfigError(f"{option} {target} holds {len(frames)} frames of an earlier replay: pass --force to "
@@ -1619,20 +1625,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    name = " ".join(n for n in (args.command, getattr(args, args.command, None)) if isinstance(n, str))  # bench sim
     try:
         _check_not_empty(parser, args)
         _check_out(args)
         return int(args.func(args) or 0)
     except ConfigError as exc:
-        print(f"dt-highway {args.command}: error: {exc}", file=sys.stderr)
+        print(f"dt-highway {name}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # an output path that cannot be written, a full disk...
-        print(f"dt-highway {args.command}: error: {_os_error(exc)}", file=sys.stderr)
+        print(f"dt-highway {name}: error: {_os_error(exc)}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as exc:  # SystemError: Ctrl-C inside numba code (dt_highway.interrupts)
         if not interrupted_by_user(exc):
             raise
-        print(f"dt-highway {args.command}: interrupted", file=sys.stderr)
+        print(f"dt-highway {name}: interrupted", file=sys.stderr)
         return 130
 
 

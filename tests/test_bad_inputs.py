@@ -120,7 +120,7 @@ def test_bench_drive_says_which_video_driver_it_used():
     forced = _bench({"DISPLAY": ":77", "SDL_VIDEODRIVER": "x11"})
     assert forced.returncode == 2 and "Traceback" not in forced.stderr
     assert forced.stderr.strip().splitlines()[-1] == (
-        "dt-highway bench: error: cannot open the driving window with SDL_VIDEODRIVER=x11 (x11 not available): "
+        "dt-highway bench drive: error: cannot open the driving window with SDL_VIDEODRIVER=x11 (x11 not available): "
         "run headless with SDL_VIDEODRIVER=offscreen, or fix the display")
 
 

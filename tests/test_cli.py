@@ -154,6 +154,13 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     _one_line_error(_cli("bench", "memory", "--hours", "0.01", "--every-min", "100", "--quiet"),
                     "--every-min must be at most half of --hours in minutes (0.3 for --hours 0.01; got 100)")
     _one_line_error(_cli("bench", "fusion", "--boxes", "100000"), "--boxes must be at most 1000")
+    # the deviation run compared no step and reported a deviation of 0 m; the error names the bench
+    _one_line_error(_cli("bench", "sim", "--deviation-s", "0.01"),
+                    "dt-highway bench sim: error: --deviation-s must be at least 0.5 s")
+    (tmp_path / "p.prof").write_text("mine")
+    _one_line_error(_cli("bench", "sim", "--profile", str(tmp_path / "p.prof")),
+                    f"--profile {tmp_path / 'p.prof'} exists: pass --force to replace it")
+    _one_line_error(_cli("bench", "sim", "--profile", str(tmp_path)), f"--profile {tmp_path} is a folder: name a file")
     _one_line_error(_cli("detector", "train", "--out", ""), "--out must not be empty (got '')")
     _one_line_error(_cli("run", "--out", "", "--quiet"), "--out must not be empty (got '')")
     _one_line_error(_cli("report", " "), "study must not be empty (got ' ')")
