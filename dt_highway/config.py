@@ -633,6 +633,9 @@ class TaggerConfig(_Section):
     def _rates(self) -> TaggerConfig:
         if self.rate_aggressive_per_min <= self.rate_normal_per_min:
             raise ValueError("rate_aggressive_per_min must be larger than rate_normal_per_min")
+        if self.evidence_weights is not None and not Path(self.evidence_weights).is_file():  # checked unused too
+            raise ValueError(f"evidence_weights file not found: {self.evidence_weights} (a .json file of dt-highway "
+                             "train-tagger)")
         return self
 
     @model_serializer(mode="wrap")

@@ -306,6 +306,7 @@ def test_values_that_were_silently_ignored_or_meaningless_are_refused():
         ("twin.in_observation_intent=true",): "in_observation_intent = true needs in_observation = true",
         ("twin.in_observation=true", "twin.in_observation_intent=true", "twin.intention.enabled=false"):
             "in_observation_intent = true needs intention.enabled = true",
+        ("twin.tagger.evidence_weights=/no/such.json",): "evidence_weights file not found: /no/such.json",
     }
     for overrides, words in cases.items():
         with pytest.raises(ConfigError) as err:
