@@ -99,6 +99,16 @@ def test_rows_parse_and_bad_rows_fail_in_one_line():
         assert "\n" not in str(err.value)
 
 
+def test_rows_take_a_folder_with_an_at_and_tell_two_files_of_one_name_apart(tmp_path):
+    odd = tmp_path / "runs@night"
+    odd.mkdir()
+    (odd / "idm.toml").write_text((ROOT / "agents" / "idm.toml").read_text())
+    rows = parse_rows(f"{odd}/idm.toml@adas:zero-marks,idm.toml@adas", ROOT / "agents")  # was "unknown condition"
+    assert rows[0].driver == str(odd / "idm.toml") and rows[0].condition == "adas" and rows[0].ablation == "zero-marks"
+    with pytest.raises(ConfigError, match=r"are both called 'idm.toml': .* rename one$"):  # was "named twice"
+        parse_rows(f"idm.toml@adas,{odd}/idm.toml@adas", ROOT / "agents")
+
+
 def test_a_bad_row_is_one_line_on_the_command_line(capsys):
     assert main(["rl-compare", "--rows", "idm.toml@adas-thret", "--episodes", "1"]) == 2
     err = capsys.readouterr().err.strip()

@@ -197,7 +197,7 @@ def parse_rows(text: str, driver_dir: str | Path = "agents") -> list[Row]:
     for part in (p.strip() for p in text.split(",")):
         if not part:
             continue
-        driver, at, rest = part.partition("@")
+        driver, at, rest = part.rpartition("@")  # the last @: a folder may hold one, a condition never does
         condition, colon, ablation = rest.partition(":")
         if not at or not driver or not condition:
             raise ConfigError(f"--rows: bad row {part!r} (expected {ROW_SYNTAX})")
@@ -212,7 +212,11 @@ def parse_rows(text: str, driver_dir: str | Path = "agents") -> list[Row]:
         if not path.exists() and path.parent == Path(".") and (Path(driver_dir) / driver).exists():
             path = Path(driver_dir) / driver
         row = Row(str(path), condition, ablation)
-        if any(r.label == row.label for r in rows):
+        twin = next((r for r in rows if r.label == row.label), None)
+        if twin is not None and Path(twin.driver).resolve() != path.resolve():  # the label names the file only
+            raise ConfigError(f"--rows: {twin.driver} and {path} are both called {path.name!r}: the comparison's rows "
+                              "are named after the file, so rename one")
+        if twin is not None:
             raise ConfigError(f"--rows: row {row.label!r} is named twice")
         rows.append(row)
     if not rows:
