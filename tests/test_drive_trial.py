@@ -118,6 +118,14 @@ def test_a_script_built_in_code_that_ends_paused_ends_the_trial(tmp_path):
     assert trial.meta["status"] == "aborted" and trial.meta["end_reason"] == "the key script ended with the trial paused"
 
 
+def test_key_events_after_the_trials_end_are_said_not_dropped_silently(tmp_path):
+    said: list[str] = []
+    script = KeyScript([KeyEvent(0.2, True, "UP"), KeyEvent(0.5, False, "UP"), KeyEvent(9.0, True, "LEFT"),
+                        KeyEvent(9.1, False, "LEFT")])
+    run_drive(_opts(tmp_path, keys_from=script), say=said.append)
+    assert said[-1] == "  the key script's last 2 events (from 9 s) came after the trial's end: not used"
+
+
 def _interactive(tmp_path, plan, *, condition="sham", label="Trial 2", duration_s=30.0, captions=None):
     """Run an interactive trial; ``plan[n]`` lists the pygame events posted after the n-th frame shown."""
     shown = []

@@ -884,6 +884,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                                                       None if wheel is None else wheel[0])
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
+            unused = opts.keys_from.remaining if opts.keys_from is not None else []
+            if unused:  # a script longer than the trial, or one it ended early: said, not dropped silently
+                say(f"  the key script's last {len(unused)} event{'s' if len(unused) > 1 else ''} (from "
+                    f"{unused[0].t_s:g} s) came after the trial's end: not used")
             if not scripted:
                 _end_screen(win, trial.status, trial.end_reason, opts.practice)
         finally:

@@ -239,3 +239,8 @@ class KeyScript:
     def finished(self) -> bool:
         """Every event has been returned."""
         return self._next >= len(self.events)
+
+    @property
+    def remaining(self) -> list[KeyEvent]:
+        """The events not returned yet (after a trial: those it ended before)."""
+        return self.events[self._next:]
