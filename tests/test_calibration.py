@@ -86,7 +86,7 @@ def test_a_table_of_other_cells_is_replaced_only_with_force(calibrated: Path):
     r = _cli("calibrate", "--knob", "traffic.dangerous.brake_mps2=4,2", *common)  # the same cells: resumed
     assert r.returncode == 0, r.stderr
     assert pd.read_csv(calibrated / "calibration.csv")["traffic.dangerous.brake_mps2"].tolist() == [4, 2]
-    for knob in ("traffic.dangerous.brake_mps2=2", "traffic.dangerous.share=0.5"):
+    for knob in ("traffic.dangerous.brake_mps2=2", "traffic.aggressive_fraction=0.3"):
         r = _cli("calibrate", "--knob", knob, *common)
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert ("calibration.csv holds the table of another calibration (traffic.dangerous.brake_mps2 = 4, 2 for "
