@@ -402,7 +402,7 @@ def deviation_steps(deviation_s: float) -> int:
     :raises ValueError: when that is none (one line naming the least ``deviation_s``)
     """
     f = SIM_SCENARIO["policy_frequency"]
-    n = int(round(deviation_s * f))
+    n = math.floor(deviation_s * f + 0.5)  # half up: round() takes 0.5 to 0
     if n < 1:
         raise ValueError(f"--deviation-s must be at least {0.5 / f:g} s: the deviation run compares whole decisions, "
                          f"{f:g} a second (got {deviation_s:g})")

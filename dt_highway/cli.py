@@ -221,7 +221,8 @@ MIN_OBSERVED_S = 30.0
 def cmd_twin_eval(args: argparse.Namespace) -> int:
     if args.population is not None:
         for text in args.overrides:
-            set_to = (parse_override(text).get("traffic") or {}).get("population")
+            traffic = parse_override(text).get("traffic")
+            set_to = traffic.get("population") if isinstance(traffic, dict) else None  # traffic=1: the config says
             if set_to is not None and set_to != args.population:
                 raise ConfigError(f"--population {args.population} and --set {text.strip()} name two populations: "
                                   "give one")
@@ -369,7 +370,7 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     alternate: dict[str, Any] = {}
     for text in args.alternate:
         alternate = deep_merge(alternate, parse_override(text, "--alternate"))
-    for where, tree in (("--set", cfg), ("--alternate", merge(cfg, alternate))):  # a bad key or value: one line
+    for where, tree in (("--scenario, --set or the driver", cfg), ("--alternate", merge(cfg, alternate))):  # one line
         if tree.twin.intention.model != "learned":
             raise ConfigError(f"train-intent trains the learned network: twin.intention.model = "
                               f"{tree.twin.intention.model!r} ({where}) has no weights to train; drop it")
@@ -705,7 +706,7 @@ def cmd_camera(args: argparse.Namespace) -> int:
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
     out = Path(args.out)
-    if out.is_dir():  # --force (else refused before): the earlier frames go, so the folder matches config.json
+    if args.force and out.is_dir():  # the earlier frames go, so the folder matches its config.json
         for frame in (f for f in out.iterdir() if CAMERA_FRAME.fullmatch(f.name)):
             frame.unlink()
     with _progress(args.frames, "camera", args.quiet) as bar:
@@ -732,6 +733,10 @@ def cmd_matching(args: argparse.Namespace) -> int:
         raise ConfigError(f"--sweep runs with one detector: give --detectors {kinds[0]} or {kinds[1]} with it "
                           f"(got '{args.detectors}')")
     out = Path(args.out)
+    if args.force:  # the earlier run's outputs go, so the folder holds this run's alone
+        for folder in (out, out / "simulated", out / "learned"):
+            for name in MATCHING_FILES:
+                (folder / name).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     table: dict[str, Any] = {}
     for kind in kinds:
@@ -1274,7 +1279,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--detectors", metavar="KINDS",
                    help="detectors to compare, e.g. simulated,learned (default: the config's detector.kind); "
                    "--sweep runs with one")
-    p.add_argument("--force", action="store_true", help="replace the outputs of an earlier matching run --out holds")
+    p.add_argument("--force", action="store_true",
+                   help="replace the outputs of an earlier matching run --out holds (they are deleted first)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_matching)
 
@@ -1391,7 +1397,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
     p.add_argument("--out", default="runs/calibration", help="where the cells' trials and the table go")
     p.add_argument("--force", action="store_true",
-                   help="replace the table --out holds when it is of other cells (another knob, driver or value)")
+                   help="replace the table --out holds when it has cells this run leaves out (another knob, "
+                   "driver or value)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_calibrate)
 
@@ -1577,6 +1584,10 @@ EARLIER_OUTPUTS = {
 """The files that say a folder holds an earlier run of a command whose ``--out`` is a folder it writes
 fixed names into (``study``, ``calibrate``, ``session`` and ``drive`` resume instead; ``rl-compare``
 checks its own)"""
+
+MATCHING_FILES = ("curve.csv", "summary.json", "frames.csv", "curve.png", "sweep.csv", "sweep.json", "sweep.png",
+                  "detectors.json", "config.json")
+"""What ``dt-highway matching`` writes in its ``--out`` (and, comparing detectors, in ``simulated/`` and ``learned/``)"""
 
 CAMERA_FRAME = re.compile(r"(rgb|depth|instance|boxes|overlay)_\d{4,}\.png|frame_\d{4,}\.npz")
 """A frame ``dt-highway camera`` writes"""

@@ -1011,7 +1011,8 @@ def _another_type(old: dict[str, Any], new: dict[str, Any]) -> bool:
 def _lift_highway_keys(tree: dict[str, Any]) -> dict[str, Any]:
     """Move highway-env keys given at the top level into the ``highway`` section.
 
-    :raises ConfigError: on a key given there and in the section with another value
+    :raises ConfigError: on a key given there and in the section with another value (in one layer: a later
+        layer's top-level key replaces an earlier layer's section key, as :func:`load_config` merges them)
     """
     if not isinstance(tree, dict):
         raise ConfigError(f"configuration must be a table of keys (got {type(tree).__name__})")
@@ -1218,5 +1219,5 @@ def load_config(
     layer: dict[str, Any] = {}  # the --set values as one layer: a type named after its options keeps them
     for text in overrides:
         layer = deep_merge(layer, parse_override(text))
-    return validate(deep_merge(tree, layer))
+    return validate(deep_merge(tree, _lift_highway_keys(layer)))  # a top-level key of --set beats the scenario's
 

@@ -6,7 +6,17 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import os
+from pathlib import Path
 from typing import Any
+
+
+def replace_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` through a temporary file beside it and :func:`os.replace`, so a
+    crash leaves the earlier file or the new one, never half of one."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
 
 
 def json_safe(obj: Any) -> Any:

@@ -45,7 +45,7 @@ from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.interrupts import SignalsSeen, interrupted_by_user, signals_held
-from dt_highway.jsonio import dump_json, whole_number
+from dt_highway.jsonio import dump_json, replace_text, whole_number
 from dt_highway.metrics.trial_log import (
     TrialRecorder,
     TrialWriter,
@@ -104,7 +104,7 @@ def check_resume(out: str | Path, specs: Sequence[TrialSpec]) -> dict[str, dict[
         if not all(isinstance(t, dict) and {"seed", "overrides", "driver", "scenario"} <= t.keys() for t in before.values()):
             raise ValueError("a trial without its settings")
     except (OSError, ValueError, KeyError, TypeError) as err:  # resumed, it would be written anew without its trials
-        why = err.strerror if isinstance(err, OSError) else "not the record of a study's trials"
+        why = (err.strerror or str(err)) if isinstance(err, OSError) else "not the record of a study's trials"
         raise ConfigError(f"{record} cannot be read ({why}): it records the trials the study was started with, so "
                           "mend or move it to go on (the trials' own meta.json files hold their settings)") from None
 
@@ -285,7 +285,7 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     out.mkdir(parents=True, exist_ok=True)
     recorded = check_resume(out, specs)
     trials = {**recorded, **{s.directory: asdict(s) for s in specs}}  # trials of earlier runs stay on record
-    (out / "study.json").write_text(dump_json({"trials": list(trials.values())}) + "\n")
+    replace_text(out / "study.json", dump_json({"trials": list(trials.values())}) + "\n")  # never half written
     result = StudyResult(str(out))
 
     def record(r: dict[str, Any]) -> None:

@@ -91,6 +91,11 @@ def test_a_table_of_other_cells_is_replaced_only_with_force(calibrated: Path):
         assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert ("calibration.csv holds the table of another calibration (traffic.dangerous.brake_mps2 = 4, 2 for "
                 "idm): pass --force") in r.stderr, r.stderr
+    from dt_highway.evaluation.calibration import check_table_kept
+
+    knob = "traffic.dangerous.brake_mps2"
+    check_table_kept(calibrated, knob, ["idm"], ["2", "4", "3"], force=False)  # more cells: the rows are kept
+    check_table_kept(calibrated, knob, ["idm", "human"], ["2", "4"], force=False)
     r = _cli("calibrate", "--knob", "traffic.dangerous.brake_mps2=2,4", *common, "--force")
     assert r.returncode == 0, r.stderr
     assert (calibrated / "calibration.csv").read_bytes() == table  # the cells resumed: the first table again

@@ -157,6 +157,9 @@ def test_user_mistakes_are_one_line_errors(tmp_path):
     # the deviation run compared no step and reported a deviation of 0 m; the error names the bench
     _one_line_error(_cli("bench", "sim", "--deviation-s", "0.01"),
                     "dt-highway bench sim: error: --deviation-s must be at least 0.5 s")
+    from dt_highway.bench import deviation_steps
+
+    assert [deviation_steps(s) for s in (0.5, 1.0, 1.4, 1.5, 30.0)] == [1, 1, 1, 2, 30]  # 0.5 s: its own least value
     (tmp_path / "p.prof").write_text("mine")
     _one_line_error(_cli("bench", "sim", "--profile", str(tmp_path / "p.prof")),
                     f"--profile {tmp_path / 'p.prof'} exists: pass --force to replace it")

@@ -158,9 +158,11 @@ def test_a_session_goes_on_only_in_the_conditions_and_order_it_started_with(tmp_
     capsys.readouterr()
     for other, gives in (("baseline,adas", "baseline, adas"), ("sham,baseline", "sham, baseline")):
         assert main([*args, "--conditions", other]) == 2
-        err = capsys.readouterr().err
+        printed = capsys.readouterr()
+        err = printed.err
         said = f"P01's session started with the conditions baseline, sham (in that order); --conditions gives {gives}"
         assert err.count("\n") == 1 and said in err, err
+        assert "session of P01" not in printed.out  # the plan is said once every check has passed
         assert sorted(p.name for p in (out / "trials").iterdir()) == trials  # nothing driven
     assert main([*args, "--conditions", "baseline,sham"]) == 0  # the same: goes on (all done, skipped)
     assert "4 of 4 trials done" in capsys.readouterr().out

@@ -327,6 +327,11 @@ def test_a_highway_key_given_at_the_top_level_and_in_its_section_is_given_once()
     assert validate({"vehicles_count": 5, "highway": {"vehicles_count": 5, "lanes_count": 3}}).highway.vehicles_count == 5
     with pytest.raises(ConfigError, match="give it once"):
         gym.make("dt-highway-v0", config={"highway": {"lanes_count": 3}, "lanes_count": 2})
+    # a later layer's top-level key beats an earlier layer's section: --set duration=60 on a scenario's [highway]
+    assert load_config("envs/highway-trial.toml", ["duration=60"]).highway.duration == 60
+    assert load_config("envs/highway-trial.toml", ["lanes_count=4"], {"highway": {"lanes_count": 2}}).highway.lanes_count == 4
+    with pytest.raises(ConfigError, match="give it once"):  # both spellings in the one --set layer
+        load_config(None, ["lanes_count=4", "highway.lanes_count=2"])
 
 
 @pytest.mark.parametrize("override, words", [

@@ -597,10 +597,10 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
     assert "twin.intention.enabled" in capsys.readouterr().err
     assert main(["train-intent", "--out", "x.npz", "--alternate", "traffic.nope=1", "--quiet", *TINY]) == 2
     assert "traffic.nope" in capsys.readouterr().err
-    for option in ("--set", "--alternate"):  # the physics model has nothing to train: it trained the network anyway
+    for option, where in (("--set", "--scenario, --set or the driver"), ("--alternate", "--alternate")):  # trained anyway
         assert main(["train-intent", "--out", "x.npz", option, "twin.intention.model=physics", "--quiet", *TINY]) == 2
         err = capsys.readouterr().err
-        assert f"twin.intention.model = 'physics' ({option}) has no weights to train" in err and err.count("\n") == 1
+        assert f"twin.intention.model = 'physics' ({where}) has no weights to train" in err and err.count("\n") == 1
     assert not Path("x.npz").exists()
     # each was silently ignored or replaced
     assert main(["twin-eval", "--intent", "--min-observed-s", "1", "--quiet", *TINY]) == 2
@@ -608,6 +608,9 @@ def test_intent_command_mistakes_are_one_line_errors(capsys):
     assert main(["twin-eval", "--population", "continuum", "--set", "traffic.population=two_class", "--quiet", *TINY]) == 2
     assert ("--population continuum and --set traffic.population=two_class name two populations: give one"
             in capsys.readouterr().err)
+    assert main(["twin-eval", *TINY, "--population", "continuum", "--set", "traffic=1", "--quiet"]) == 2  # was a traceback
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "traffic" in err and "Traceback" not in err
 
 
 def test_train_intent_refuses_to_replace_weights_or_learn_from_nothing(tmp_path, capsys):

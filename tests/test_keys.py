@@ -48,6 +48,11 @@ def test_bad_key_scripts_name_the_line(text, message):
         KeyScript.parse(text, "keys.txt")
 
 
+def test_a_script_that_pauses_then_quits_is_taken():
+    script = KeyScript.parse("5 down P\n5.1 up P\n6 down ESC\n", "keys.txt")  # a scripted ESC ends the trial
+    assert [e.key for e in script.events] == ["P", "P", "ESC"]
+
+
 def test_a_missing_key_script_is_one_line(tmp_path):
     with pytest.raises(KeyScriptError, match="cannot read the key script"):
         KeyScript.load(tmp_path / "none.txt")

@@ -249,8 +249,8 @@ def test_a_trial_whose_process_died_is_kept_and_the_next_attempt_goes_to_retry1(
     calls: list[tuple] = []
     said: list[str] = []
     outcome = run_session(_base(tmp_path), 1.0, say=said.append, drive=_fake_drive(set(), calls), questionnaires=_no_q)
-    assert said[0].startswith("session of P01 in ") and said[0].endswith(": practice baseline, adas, then baseline, adas")
-    assert said[1] == "P01-adas: left by a process that died, kept as aborted"
+    assert said[0] == "P01-adas: left by a process that died, kept as aborted"
+    assert said[1].startswith("session of P01 in ") and said[1].endswith(": practice baseline, adas, then baseline, adas")
     assert load_trial(tmp_path / "trials" / "P01-adas").meta["status"] == "aborted"
     assert [c[0] for c in calls] == ["P01-practice-baseline", "P01-practice-adas", "P01-baseline", "P01-adas-retry1"]
     assert outcome.complete and not (tmp_path / STAGING).exists()

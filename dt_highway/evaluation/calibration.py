@@ -188,8 +188,8 @@ def calibrate(
 
 
 def check_table_kept(out: Path, knob: str, drivers: Sequence[str], values: Sequence[str], force: bool) -> None:
-    """Refuse to replace a calibration table of other cells (another knob, driver or value) unless ``force``:
-    the same cells again (a resumed or repeated run) write the same table.
+    """Refuse to replace a calibration table of other cells (another knob, or a driver or value the new run
+    leaves out) unless ``force``: the same cells again (a resumed or repeated run), or more, keep its rows.
 
     :param out: the calibration directory (``calibration.csv`` in it)
     :param knob: the configuration key varied
@@ -212,8 +212,8 @@ def check_table_kept(out: Path, knob: str, drivers: Sequence[str], values: Seque
             cells = {(d, knob_value(knob, v)) for d, v in zip(held["driver"], held[knob], strict=True)}
         except ConfigError:  # a value edited into something --set cannot read: another table
             cells = set()
-        if cells == {(d, knob_value(knob, v)) for d in drivers for v in values}:
-            return
+        if cells and cells <= {(d, knob_value(knob, v)) for d in drivers for v in values}:
+            return  # the same cells again, or more: the new table keeps every row of the one there
     column = held.columns[1]
     there = f"{column} = {', '.join(dict.fromkeys(held[column]))} for {', '.join(dict.fromkeys(held['driver']))}"
     raise ConfigError(f"{path} holds the table of another calibration ({there}): pass --force to replace it, "

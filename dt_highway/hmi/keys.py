@@ -166,7 +166,8 @@ class KeyScript:
         """Read ``time down|up KEY`` lines (``#`` starts a comment).
 
         :raises KeyScriptError: naming the file and line of the first bad one, or a script that ends with
-            the trial paused (``P`` pressed an odd number of times)
+            the trial paused (``P`` pressed an odd number of times, and no ``ESC``, which ends a scripted
+            trial, after the last)
         """
         events = []
         last = -math.inf
@@ -200,7 +201,8 @@ class KeyScript:
             events.append(KeyEvent(t, action == "down", key))
             last = t
         pauses = [e for e in events if e.down and e.key == "P"]
-        if len(pauses) % 2:  # P toggles the pause: the trial would wait for a key the script never presses
+        quits = any(e.down and e.key == "ESC" and e.t_s >= pauses[-1].t_s for e in events) if pauses else False
+        if len(pauses) % 2 and not quits:  # P toggles the pause: the trial would wait for a key never pressed
             times = f"{len(pauses)} time{'s' if len(pauses) > 1 else ''}"
             raise KeyScriptError(f"{source}: P is pressed {times}, the last at {pauses[-1].t_s:g} s: the script ends "
                                  "with the trial paused, which it would wait in for ever (press P again)")

@@ -548,6 +548,9 @@ class _Session:
         self.check_same_conditions()
         done = {t.name: completed_attempt(self.out, t.name) for t in self.plan}
         self.check_same_settings(done)
+        self.say(f"session of {self.base.participant} in {self.base.out} (protocol {self.protocol.name}): practice "
+                 f"{', '.join(t.condition for t in self.plan if t.practice) or 'none'}, then "
+                 f"{', '.join(t.condition for t in self.plan if not t.practice)}")
         self.log("start", participant=self.base.participant, protocol=self.protocol.name,
                  plan=[{"trial": t.name, "label": t.label, "condition": t.condition, "practice": t.practice,
                         "seed": t.opts.seed, "duration_s": t.opts.duration_s} for t in self.plan],
@@ -665,9 +668,6 @@ def run_session(base: DriveOptions, practice_duration_s: float | None = None,
     check_questionnaires(protocol)
     if answers_from is not None:  # a file that cannot be read or misses an answer fails now, not after a trial
         check_answers(load_answers(answers_from), plan, protocol, Path(base.out), where=f"answers file {answers_from}")
-    say(f"session of {base.participant} in {base.out} (protocol {protocol.name}): practice "
-        f"{', '.join(t.condition for t in plan if t.practice) or 'none'}, then "
-        f"{', '.join(t.condition for t in plan if not t.practice)}")
     for moved in recover_staged(Path(base.out)):
         say(f"{moved.name}: left by a process that died, kept as aborted")
     with _Signals() as signals:

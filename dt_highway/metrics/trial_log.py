@@ -43,7 +43,7 @@ import pandas as pd
 
 from dt_highway._version import __version__
 from dt_highway.interrupts import interrupted_by_user, signals_deferred
-from dt_highway.jsonio import finite_number, json_safe, positive_number
+from dt_highway.jsonio import finite_number, json_safe, positive_number, replace_text
 from dt_highway.metrics.overlay_metrics import overlay_metrics
 from dt_highway.metrics.safety import trial_metrics
 
@@ -84,9 +84,7 @@ FINISHED_STATUSES = ("completed", "ended_by_collision")
 
 
 def _write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    replace_text(path, json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n")
 
 
 def _version() -> str:
