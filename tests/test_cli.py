@@ -127,6 +127,11 @@ def test_run_camera_and_matching_replace_an_earlier_output_only_with_force(tmp_p
     assert main(["camera", "--out", str(cam), "--frames", "1", "--force", "--quiet", *TINY]) == 0
     assert sorted(p.name for p in cam.iterdir()) == ["boxes_0000.png", "config.json", "depth_0000.png", "frames.jsonl",
                                                      "instance_0000.png", "notes.txt", "rgb_0000.png"]
+    stray = tmp_path / "stray"  # frames of no camera run (no frames.jsonl): kept without --force
+    stray.mkdir()
+    (stray / "rgb_0007.png").write_bytes(b"mine")
+    assert main(["camera", "--out", str(stray), "--frames", "1", "--quiet", *TINY]) == 0
+    assert (stray / "rgb_0007.png").read_bytes() == b"mine" and (stray / "rgb_0000.png").is_file()
     run = tmp_path / "run"
     (run / "twin_eval.json").parent.mkdir()
     (run / "twin_eval.json").write_text("{}")
