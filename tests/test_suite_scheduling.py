@@ -44,3 +44,19 @@ def test_wall_clock_tests_form_one_unit_and_whole_files_another_the_rest_one_eac
 def test_another_dist_mode_is_left_to_pytest_xdist():
     assert pytest_xdist_make_scheduler(_Config("loadfile"), None) is None
     assert pytest_xdist_make_scheduler(_Config("no"), None) is None
+
+
+def test_a_test_that_leaves_sigint_changed_is_named_and_the_next_sees_the_handler_back(tmp_path):
+    """One fresh-check saw a test fail because an earlier one on its worker had left SIGINT ignored."""
+    import shutil
+    import subprocess
+    import sys
+
+    shutil.copy(ROOT / "tests" / "conftest.py", tmp_path / "conftest.py")
+    (tmp_path / "test_leak.py").write_text(
+        "import signal\n\n\ndef test_leaks():\n    signal.signal(signal.SIGINT, signal.SIG_IGN)\n\n\n"
+        "def test_after():\n    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n")
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider",
+                          str(tmp_path / "test_leak.py")], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert "2 passed" in run.stdout, run.stdout + run.stderr
+    assert "test_leak.py::test_leaks left the SIGINT handler <Handlers.SIG_IGN: 1>" in run.stdout, run.stdout
