@@ -117,4 +117,7 @@ def test_knob_values_split_outside_brackets_and_a_set_of_the_knob_is_refused():
         with pytest.raises(ConfigError, match=r"sets the key --knob varies \(traffic.dangerous.brake_mps2\)"):
             check_values(knob, ["2", "3"], None, [override])
     check_values(knob, ["2", "3"], None, ["traffic.dangerous={share=1.0}", "traffic.dangerous.share=0.5"])
+    for unread in ("overlay.max_marks", "fusion.method", "detector.kind"):  # every cell the same baseline trials
+        with pytest.raises(ConfigError, match=rf"--knob {unread}: calibrate runs baseline trials, which have no "):
+            check_values(unread, ["1", "2"], None, [])
     check_values("twin.intention.horizons_s", ["[1.0,2.0]", "[1.0,3.0]"], None, ["twin.intention.operating_horizon_s=1"])

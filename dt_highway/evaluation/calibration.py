@@ -125,8 +125,13 @@ def split_values(text: str) -> list[str]:
     return [v for v in values if v]  # "2,3," is 2 and 3, as in the other comma-separated options
 
 
+UNREAD_IN_BASELINE = ("detector", "fusion", "overlay")
+"""Sections the baseline condition never reads (no camera, fusion or overlay): a knob there changes nothing"""
+
+
 def check_values(knob: str, values: Sequence[str], scenario: str | None, overrides: Sequence[str]) -> None:
-    """Refuse, before any trial runs, a knob or value the configuration refuses, a ``--set`` of the knob
+    """Refuse, before any trial runs, a knob the baseline trials never read (:data:`UNREAD_IN_BASELINE`), a
+    knob or value the configuration refuses, a ``--set`` of the knob
     (or of a table that sets it), or a configuration no driver can drive
     (:func:`~dt_highway.conditions.check_driver_action`).
 
@@ -134,6 +139,11 @@ def check_values(knob: str, values: Sequence[str], scenario: str | None, overrid
     """
     if not values:
         raise ConfigError("calibrate needs at least one value")
+    section = knob.split(".", 1)[0]
+    if section in UNREAD_IN_BASELINE:  # every cell would be the same trials
+        raise ConfigError(f"--knob {knob}: calibrate runs baseline trials, which have no detector, fusion or overlay, "
+                          f"so {section}.* changes nothing there (calibrate a world's knob: traffic.*, highway.*, ego.*, "
+                          "twin.*)")
     for text in overrides:  # the knob's value would replace it in every cell, without a word
         tree: Any = parse_override(text)
         for part in knob.split("."):
