@@ -35,7 +35,17 @@ from dt_highway.bench import (
     deviation_steps,
 )
 from dt_highway.conditions import CONDITIONS, condition_config, driver_config
-from dt_highway.config import POPULATIONS, ConfigError, DTConfig, deep_merge, find_file, load_config, merge, parse_override
+from dt_highway.config import (
+    POPULATIONS,
+    ConfigError,
+    DTConfig,
+    deep_merge,
+    find_file,
+    load_config,
+    merge,
+    override_value,
+    parse_override,
+)
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.evaluation.calibration import (
@@ -221,8 +231,7 @@ MIN_OBSERVED_S = 30.0
 def cmd_twin_eval(args: argparse.Namespace) -> int:
     if args.population is not None:
         for text in args.overrides:
-            traffic = parse_override(text).get("traffic")
-            set_to = traffic.get("population") if isinstance(traffic, dict) else None  # traffic=1: the config says
+            set_to = override_value(text, "traffic.population")
             if set_to is not None and set_to != args.population:
                 raise ConfigError(f"--population {args.population} and --set {text.strip()} name two populations: "
                                   "give one")

@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
+from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config, override_value
 
 CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
 """Every condition a study or a keyboard session can run"""
@@ -110,7 +110,7 @@ def check_mode_override(conditions: Sequence[str], overrides: Sequence[str]) -> 
     :raises ConfigError: one line naming the condition
     """
     named = [c for c in conditions if c in _MODE]
-    if named and any(str(o).partition("=")[0].strip() == "overlay.mode" for o in overrides):
+    if named and any(override_value(str(o), "overlay.mode") is not None for o in overrides):
         raise ConfigError(f"--set overlay.mode would override the mode {named[0]} names: drop it (adas and sham "
                           "take overlay.mode; the named conditions set their own)")
 

@@ -1189,6 +1189,18 @@ def parse_override(text: str, option: str = "--set") -> dict[str, Any]:
     return dotted_tree(key, value)
 
 
+def override_value(text: str, key: str, option: str = "--set") -> Any:
+    """The value the override ``text`` gives the dotted ``key``, set by name or inside a table it sets
+    (``overlay={mode="threat"}``); ``None`` when it does not set it.
+
+    :raises ConfigError: as :func:`parse_override`
+    """
+    tree: Any = parse_override(text, option)
+    for part in key.split("."):
+        tree = tree.get(part) if isinstance(tree, dict) else None
+    return tree
+
+
 def dotted_tree(key: str, value: Any) -> dict[str, Any]:
     """Turn ``("a.b.c", value)`` into ``{"a": {"b": {"c": value}}}`` (a one-key layer to merge)."""
     parts = key.split(".")

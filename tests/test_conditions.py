@@ -130,6 +130,8 @@ def test_a_set_mode_beside_a_condition_that_names_its_mode_is_refused(tmp_path, 
     mode = ["overlay.mode=threat"]
     with pytest.raises(ConfigError, match=r"^--set overlay.mode would override the mode adas-type names: drop it"):
         plan(tmp_path, "agents/idm.toml", ["adas-type", "adas-threat"], 1, 0, overrides=mode)
+    with pytest.raises(ConfigError, match=r"^--set overlay.mode would override"):  # set inside its table too
+        plan(tmp_path, "agents/idm.toml", ["adas-type"], 1, 0, overrides=['overlay={mode="threat", max_marks=2}'])
     assert len(plan(tmp_path, "agents/idm.toml", ["baseline", "adas", "sham"], 1, 0, overrides=mode)) == 3  # they take it
     assert len(plan(tmp_path, "agents/idm.toml", ["adas-type"], 1, 0, overrides=["overlay.max_marks=2"])) == 1
     for command in (["study", "--driver", "agents/idm.toml", "--conditions", "baseline,sham-threat"],

@@ -319,6 +319,18 @@ def test_values_that_were_silently_ignored_or_meaningless_are_refused():
     assert load_config(None, ["twin.intention.horizons_s=[1.0,2.5,3.0]", "overlay.horizon_s=2.5"]).overlay.horizon_s == 2.5
 
 
+def test_override_value_finds_a_key_set_by_name_or_in_a_table():
+    from dt_highway.config import override_value
+
+    assert override_value("overlay.mode=threat", "overlay.mode") == "threat"
+    assert override_value('overlay={mode="both", max_marks=2}', "overlay.mode") == "both"
+    assert override_value("overlay.max_marks=2", "overlay.mode") is None
+    assert override_value("overlay=1", "overlay.mode") is None  # no table: the configuration says what is wrong
+    assert override_value("traffic.dangerous.brake_mps2 = 2.0", "traffic.dangerous.brake_mps2") == 2.0
+    with pytest.raises(ConfigError, match="--knob expects dotted.key=value"):
+        override_value("nope", "a.b", "--knob")
+
+
 def test_a_highway_key_given_at_the_top_level_and_in_its_section_is_given_once():
     """The top-level value won without a word."""
     with pytest.raises(ConfigError, match=r"^vehicles_count is given at the top level \(5\) and as "

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from dt_highway.conditions import check_driver_action, condition_config
-from dt_highway.config import ConfigError, load_config, parse_override
+from dt_highway.config import ConfigError, load_config, override_value
 from dt_highway.metrics.safety import TTC_CAP_S, cut_in_outcomes
 from dt_highway.metrics.trial_log import Trial, load_trial
 from dt_highway.study import plan, run_study
@@ -145,10 +145,7 @@ def check_values(knob: str, values: Sequence[str], scenario: str | None, overrid
                           f"so {section}.* changes nothing there (calibrate a world's knob: traffic.*, highway.*, ego.*, "
                           "twin.*)")
     for text in overrides:  # the knob's value would replace it in every cell, without a word
-        tree: Any = parse_override(text)
-        for part in knob.split("."):
-            tree = tree.get(part) if isinstance(tree, dict) else None
-        if tree is not None:
+        if override_value(text, knob) is not None:
             raise ConfigError(f"--set {text.strip()} sets the key --knob varies ({knob}): drop it, or give the value "
                               "in --knob")
     for v in values:
@@ -235,11 +232,9 @@ def knob_value(knob: str, text: str) -> str:
 
     :raises ConfigError: on a value ``--set`` cannot parse
     """
-    tree: Any = parse_override(f"{knob}={text}", "--knob")
-    for part in knob.split("."):
-        tree = tree[part]
-    number = isinstance(tree, int | float) and not isinstance(tree, bool)
-    return repr(float(tree)) if number else repr(tree)
+    value = override_value(f"{knob}={text}", knob, "--knob")
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    return repr(float(value)) if number else repr(value)
 
 
 TABLE_COLUMNS = {
