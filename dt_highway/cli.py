@@ -58,7 +58,7 @@ from dt_highway.evaluation.calibration import (
     split_values,
 )
 from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
-from dt_highway.evaluation.frames import record_frames
+from dt_highway.evaluation.frames import frame_files, record_frames
 from dt_highway.evaluation.intent import (
     INTENT_EPISODES,
     evaluate_intent,
@@ -69,7 +69,14 @@ from dt_highway.evaluation.intent import (
 )
 from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, PICTURE_REVEALABLE, STARTS, OracleSettings
 from dt_highway.evaluation.intent_train import train_intention
-from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+from dt_highway.evaluation.matching import (
+    OUTPUT_FILES,
+    SWEEP_FILES,
+    run_matching,
+    run_sweep,
+    write_outputs,
+    write_sweep,
+)
 from dt_highway.evaluation.rl import (
     COMPARE_SCENARIO,
     COMPARE_SEED,
@@ -715,8 +722,8 @@ def cmd_camera(args: argparse.Namespace) -> int:
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
     out = Path(args.out)
-    if args.force and out.is_dir():  # the earlier frames go, so the folder matches its config.json
-        for frame in (f for f in out.iterdir() if CAMERA_FRAME.fullmatch(f.name)):
+    if args.force:  # the earlier frames go, so the folder matches its config.json
+        for frame in frame_files(out):
             frame.unlink()
     with _progress(args.frames, "camera", args.quiet) as bar:
         result = record_frames(cfg, args.frames, args.seed, out, args.every, args.raw, progress=bar.update)
@@ -1594,12 +1601,8 @@ EARLIER_OUTPUTS = {
 fixed names into (``study``, ``calibrate``, ``session`` and ``drive`` resume instead; ``rl-compare``
 checks its own)"""
 
-MATCHING_FILES = ("curve.csv", "summary.json", "frames.csv", "curve.png", "sweep.csv", "sweep.json", "sweep.png",
-                  "detectors.json", "config.json")
+MATCHING_FILES = (*OUTPUT_FILES, *SWEEP_FILES, "detectors.json", "config.json")
 """What ``dt-highway matching`` writes in its ``--out`` (and, comparing detectors, in ``simulated/`` and ``learned/``)"""
-
-CAMERA_FRAME = re.compile(r"(rgb|depth|instance|boxes|overlay)_\d{4,}\.png|frame_\d{4,}\.npz")
-"""A frame ``dt-highway camera`` writes"""
 
 
 def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target: Path) -> None:

@@ -4,6 +4,7 @@ instance ids and the true boxes, for looking at the camera and for training data
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,15 @@ def draw_boxes(rgb: np.ndarray, truth: CameraTruth) -> np.ndarray:
             cv2.putText(out, f"{t.vehicle_id} {t.visibility:.2f}", (x1, max(9, y1 - 3)),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.32, (40, 230, 60), 1, cv2.LINE_AA)
     return out
+
+
+FRAME_FILE = re.compile(r"(rgb|depth|instance|boxes|overlay)_\d{4,}\.png|frame_\d{4,}\.npz")
+"""The name of a frame's file :func:`record_frames` writes (``rgb_0003.png``, ``frame_0003.npz``...)"""
+
+
+def frame_files(folder: Path) -> list[Path]:
+    """The frames' files of :func:`record_frames` ``folder`` holds (none if it is no folder)."""
+    return sorted(p for p in folder.iterdir() if FRAME_FILE.fullmatch(p.name)) if folder.is_dir() else []
 
 
 def write_frame(image: CameraImage, truth: CameraTruth, out: Path, index: int, max_range_m: float,

@@ -276,6 +276,13 @@ def _settings(cfg: DTConfig, seed: int, bench: BenchmarkSettings) -> dict[str, A
     }
 
 
+OUTPUT_FILES = ("curve.csv", "summary.json", "frames.csv", "curve.png")
+"""What :func:`write_outputs` writes, in this order"""
+
+SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
+"""What :func:`write_sweep` writes, in this order"""
+
+
 def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
     """Write ``curve.csv``, ``summary.json``, ``frames.csv`` and ``curve.png``.
 
@@ -283,7 +290,7 @@ def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
     """
     out.mkdir(parents=True, exist_ok=True)
     curve = result.curve()
-    paths = [out / "curve.csv", out / "summary.json", out / "frames.csv", out / "curve.png"]
+    paths = [out / name for name in OUTPUT_FILES]
     with paths[0].open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["method", "subset", "iou_threshold", "accuracy"])
         w.writeheader()
@@ -362,7 +369,7 @@ def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """
     matplotlib.use("Agg")
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / "sweep.csv", out / "sweep.json", out / "sweep.png"]
+    paths = [out / name for name in SWEEP_FILES]
     with paths[0].open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
