@@ -46,6 +46,7 @@ def test_uplink_rate_is_exact_even_between_sim_steps():
 
 def test_uplink_position_is_taken_at_the_fix_time():
     fixes = _run_uplink(UplinkConfig(rate_hz=7.0, noise_sigma_m=0.0, loss_prob=0.0), sim_hz=15)
+    assert abs(len(fixes) - 3 * 7 * 20) <= 3  # three cars at 7 Hz for 20 s: the loop below sees them all
     for f in fixes:
         assert f.x_m == pytest.approx(25.0 * f.t_s, abs=1e-9)
 

@@ -296,6 +296,37 @@ def test_the_drivers_own_imports_are_clean():
     assert import_offences("dt_highway/drivers/x.py", ok, "dt_highway.drivers", DRIVER_MODULES) == ([], set())
 
 
+TWIN_TRUTH_MODULES = TRUTH_MODULES + ("dt_highway.env", "dt_highway.metrics", "highway_env")
+"""What the cloud twin may not import: the truth, the env and the simulator (it knows the world only
+through the fixes its uplink receives)"""
+
+
+def test_the_twin_imports_nothing_that_holds_the_truth():
+    """Every module of the twin (tagger, intention, chase, store, cloud, uplink, weights...), by
+    every kind of import the driver wall checks (relative, ``from dt_highway import world``,
+    ``import_module``, module attributes)."""
+    files = sorted((PACKAGE / "twin").rglob("*.py"))
+    assert {"dt_highway.twin.tagger", "dt_highway.twin.intention", "dt_highway.twin.chase", "dt_highway.twin.store",
+            "dt_highway.twin.cloud", "dt_highway.twin.uplink"} <= {_module_name(f) for f in files}
+    offences = []
+    for f in files:
+        found, _ = import_offences(str(f.relative_to(ROOT)), f.read_text(encoding="utf-8"), _package(f),
+                                   TWIN_TRUTH_MODULES)
+        offences += found
+    truth_names = frozenset({"driver_type", "dt_driver_type", "ground_truth", "DriverPopulation", "TrafficManager"})
+    offences += [o for f in files for o in name_offences(str(f.relative_to(ROOT)), f.read_text(encoding="utf-8"),
+                                                          truth_names)]
+    assert not offences, "\n".join(offences)
+
+
+@pytest.mark.parametrize("code", ["from dt_highway import world", "from ..world.traffic import driver_type",
+                                  "import importlib\nm = importlib.import_module('dt_highway.env')",
+                                  "from dt_highway.metrics import safety", "import highway_env.road.road"])
+def test_the_twin_check_sees_each_way_in(code):
+    offences, _ = import_offences("dt_highway/twin/x.py", code, "dt_highway.twin", TWIN_TRUTH_MODULES)
+    assert offences, code
+
+
 # ----------------------------------------------------------------------------- (a') names that reach the truth
 def names_used(source: str) -> list[tuple[int, str]]:
     """Every identifier a module's code uses, with its line: attribute names, names, string
