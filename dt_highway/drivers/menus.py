@@ -45,8 +45,8 @@ perception and calls the same menu.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -197,7 +197,8 @@ class DiscreteMenu:
     :raises ValueError: one line, on a bad list
     """
 
-    def __init__(self, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False, speeds_mps: Any = None,
+    def __init__(self, accels_mps2: Sequence[float] = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
+                 speeds_mps: Sequence[float] | None = None,
                  accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
                  reaction_time_s: float = 0.0, brake_limit_mps2: float = -ACCEL_MIN_MPS2) -> None:
         self.assisted: AssistedMenu | None = None
@@ -236,7 +237,7 @@ class DiscreteMenu:
         if self.assisted is not None:
             self.assisted.reset()
 
-    def choice(self, index: Any) -> int:
+    def choice(self, index: int | np.integer | np.ndarray) -> int:
         """The entry ``index`` names (an int, or a one-element array as a policy returns it).
 
         :raises ValueError: outside ``0 .. size - 1``

@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from gymnasium import spaces
+
     from dt_highway.camera.render import CameraImage
 
 
@@ -132,7 +134,7 @@ class ObservationSpec:
     options: Mapping[str, Any] = field(default_factory=dict)
     camera: Mapping[str, Any] = field(default_factory=dict)
     trained: Mapping[str, Any] = field(default_factory=dict)
-    space: Any = None
+    space: spaces.Space | None = None
 
 
 @dataclass(frozen=True)

@@ -11,12 +11,14 @@ through it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.action import ActionType
-from highway_env.road.road import LaneIndex
+from highway_env.road.road import LaneIndex, Road, Route
+from highway_env.utils import Vector
 from highway_env.vehicle.controller import ControlledVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
@@ -69,8 +71,9 @@ class DrivenVehicle(ControlledVehicle):
     MIN_SPEED = 0.0  # [m/s] no reversing on a highway
     target_lane_index: LaneIndex
 
-    def __init__(self, road: Any, position: Any, heading: float = 0, speed: float = 0, target_lane_index: Any = None,
-                 target_speed: float | None = None, route: Any = None) -> None:
+    def __init__(self, road: Road, position: Vector, heading: float = 0, speed: float = 0,
+                 target_lane_index: LaneIndex | None = None, target_speed: float | None = None,
+                 route: Route | None = None) -> None:
         super().__init__(road, position, heading, speed, target_lane_index, target_speed, route)
         self.accel_command_mps2 = 0.0
         self.lane_change_requests = 0
@@ -186,8 +189,9 @@ class DiscreteDriverAction(DriverAction):
     :param brake_limit_mps2: assisted: the gap keeping's hardest braking [m/s^2]
     """
 
-    def __init__(self, env: DTHighwayEnv, accels_mps2: Any = DEFAULT_DISCRETE_ACCELS_MPS2, assist: bool = False,
-                 speeds_mps: Any = None, reaction_time_s: float = 0.0, brake_limit_mps2: float = -ACCEL_MIN_MPS2,
+    def __init__(self, env: DTHighwayEnv, accels_mps2: Sequence[float] = DEFAULT_DISCRETE_ACCELS_MPS2,
+                 assist: bool = False, speeds_mps: Sequence[float] | None = None, reaction_time_s: float = 0.0,
+                 brake_limit_mps2: float = -ACCEL_MIN_MPS2,
                  **kwargs: Any) -> None:
         super().__init__(env, **kwargs)
         if self.steering:
@@ -202,7 +206,7 @@ class DiscreteDriverAction(DriverAction):
         """Start an episode (the assisted menu's desired speed goes back to its middle value)."""
         self.choices.reset()
 
-    def driver_action(self, index: Any) -> np.ndarray:
+    def driver_action(self, index: int | np.integer | np.ndarray) -> np.ndarray:
         """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index`` now."""
         k = self.choices.choice(index)
         perception = perceive(self.env, self.choices.senses) if self.choices.assisted is not None else None

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import ObservationType
+from highway_env.vehicle.objects import RoadObject
 from scipy.optimize import linear_sum_assignment
 
 from dt_highway.camera.render import depth_to_uint8
@@ -49,9 +50,9 @@ class _KinematicsPlus(FastKinematicObservation):
         super().__init__(env, **kwargs)
         self.base_features = list(self.features)
         self.features = self.base_features + self.EXTRA_FEATURES
-        self._rows: list[Any] | None = None
+        self._rows: list[RoadObject] | None = None
 
-    def observed(self) -> list[Any]:
+    def observed(self) -> list[RoadObject]:
         """The observer and the rows' objects; inside :meth:`observe`, the list it already found."""
         return self._rows if self._rows is not None else super().observed()
 
@@ -72,7 +73,7 @@ class _KinematicsPlus(FastKinematicObservation):
             self.env.np_random.shuffle(out[1:])
         return out
 
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
+    def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
         """Write the extra columns (``extra``, one row per observed object, the ego first) in place."""
         raise NotImplementedError
 
@@ -108,7 +109,7 @@ class TwinTaggedKinematics(_KinematicsPlus):
         if self.intent_horizon_s is not None:
             self.features = self.features + self.INTENT_FEATURES
 
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
+    def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
         view: TwinView | None = self.env.twin_view
         if view is None or not view.vehicles or len(rows) < 2:
             return
@@ -166,7 +167,7 @@ class OverlayKinematics(_KinematicsPlus):
         if self.threat:
             self.features = self.features + self.THREAT_FEATURES
 
-    def fill(self, extra: np.ndarray, rows: list[Any]) -> None:
+    def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
         adas = self.env.adas_output()
         if adas is None or not adas["overlay"]:
             return

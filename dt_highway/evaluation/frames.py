@@ -15,6 +15,7 @@ import numpy as np
 from dt_highway.camera.export import colourise_depth, colourise_instance, write_png
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.truth import CameraTruth
+from dt_highway.config import DTConfig
 from dt_highway.env import DTHighwayEnv
 from dt_highway.overlay import draw_overlay
 
@@ -76,7 +77,7 @@ def write_frame(image: CameraImage, truth: CameraTruth, out: Path, index: int, m
 
 
 def record_frames(
-    config: Any,
+    config: DTConfig,
     frames: int,
     seed: int,
     out: Path,

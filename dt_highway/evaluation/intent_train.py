@@ -21,7 +21,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from dt_highway.config import DTConfig, merge
 from dt_highway.drivers import Driver
 from dt_highway.evaluation.intent import Episode, Truth, record_episodes
 from dt_highway.twin.intention import HIDDEN, OWN_FEATURES, SIDE_FEATURES, save_weights
+
+if TYPE_CHECKING:
+    import torch
 
 TRAINED_HORIZONS_S = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 """The horizons the network answers for (others are interpolated) [s]"""
@@ -82,6 +85,12 @@ def fit(data: dict[str, np.ndarray], epochs: int = 25, batch: int = 1024, lr: fl
         ) -> tuple[np.ndarray, np.ndarray, Layers, list[float]]:
     """Train the network on a :func:`dataset`.
 
+    :param data: the arrays :func:`dataset` returns
+    :param epochs: passes over the data
+    :param batch: samples per optimiser step
+    :param lr: Adam's initial learning rate (cosine-annealed to 0 over the epochs)
+    :param seed: seeds torch's initial weights and the batches' order
+    :param hidden: units in each of the two hidden layers
     :param progress: called with 1 after each epoch
     :return: input mean, input scale, layers ``(W, b)`` (numpy, ``W`` as ``(in, out)``) and the loss of each epoch
     """
@@ -116,10 +125,17 @@ def fit(data: dict[str, np.ndarray], epochs: int = 25, batch: int = 1024, lr: fl
     return mean, scale, layers, losses
 
 
-def train_epochs(opt: Any, n_samples: int, epochs: int, batch: int, gen: Any, batch_loss: Callable[[Any], tuple[Any, int]],
-                 sched: Any = None, progress: Callable[[int], None] | None = None) -> list[float]:
+def train_epochs(opt: torch.optim.Optimizer, n_samples: int, epochs: int, batch: int, gen: torch.Generator,
+                 batch_loss: Callable[[torch.Tensor], tuple[torch.Tensor, int]],
+                 sched: torch.optim.lr_scheduler.LRScheduler | None = None,
+                 progress: Callable[[int], None] | None = None) -> list[float]:
     """Adam-style minibatch training: each epoch a fresh permutation from ``gen``, one optimiser step per batch.
 
+    :param opt: the optimiser of the network's parameters
+    :param n_samples: how many samples the data hold (the permutation's length)
+    :param epochs: passes over the data
+    :param batch: samples per optimiser step
+    :param gen: the seeded generator of the permutations
     :param batch_loss: the loss of a batch of sample indices and the number of terms it averages
     :param sched: a learning-rate scheduler stepped after each epoch (``None``: none)
     :param progress: called with 1 after each epoch
@@ -146,7 +162,7 @@ def train_epochs(opt: Any, n_samples: int, epochs: int, batch: int, gen: Any, ba
     return losses
 
 
-def numpy_layers(net: Any) -> Layers:
+def numpy_layers(net: torch.nn.Sequential) -> Layers:
     """:return: the ``(W, b)`` of each linear layer of a torch ``Sequential``, as float64 numpy (``W`` as ``(in, out)``)"""
     import torch  # lazy: training only, as in fit
 
