@@ -236,6 +236,7 @@ MIN_OBSERVED_S = 30.0
 
 
 def cmd_twin_eval(args: argparse.Namespace) -> int:
+    """``dt-highway twin-eval``: the twin's aggressive tags (or ``--intent``, its intention) scored on episodes."""
     if args.population is not None:
         for text in args.overrides:
             set_to = override_value(text, "traffic.population")
@@ -795,6 +796,7 @@ def cmd_matching(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- bench
 def cmd_bench_camera(args: argparse.Namespace) -> int:
+    """``dt-highway bench camera``: the camera's frame time on busy scenes."""
     cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
         result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
@@ -816,6 +818,7 @@ MAX_BENCH_BOXES = 1000
 
 
 def cmd_bench_fusion(args: argparse.Namespace) -> int:
+    """``dt-highway bench fusion``: the fusion's time per frame for a number of boxes."""
     if args.boxes > MAX_BENCH_BOXES:
         raise ConfigError(f"--boxes must be at most {MAX_BENCH_BOXES} (got {args.boxes})")
     result = bench_fusion(args.frames, args.boxes)
@@ -829,6 +832,7 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_drive(args: argparse.Namespace) -> int:
+    """``dt-highway bench drive``: the driving window's frame times, headless or on the display."""
     result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
                          find_file_or_default(args.scenario), list(args.overrides))
     if args.json:
@@ -853,6 +857,7 @@ def find_file_or_default(scenario: str | None) -> str:
 
 
 def cmd_bench_memory(args: argparse.Namespace) -> int:
+    """``dt-highway bench memory``: the env's memory over hours of simulated driving."""
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
         default = " (the default)" if args.every_min == 10.0 else ""
         raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
@@ -1079,6 +1084,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_bench_sim(args: argparse.Namespace) -> int:
+    """``dt-highway bench sim``: the fast road's steps per second against highway-env's, and where they part."""
     try:
         deviation_steps(args.deviation_s)  # before the throughput runs
     except ValueError as exc:
@@ -1104,6 +1110,7 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_train(args: argparse.Namespace) -> int:
+    """``dt-highway bench train``: env steps and PPO timesteps per second of a training file."""
     cfg = load_train_config(args.config)
     total = 2 * args.env_steps + 2 * args.timesteps  # PPO rounds up to whole rollouts: about
     with _progress(total, "bench train", args.quiet or args.json) as bar:
@@ -1136,6 +1143,7 @@ def cmd_bench_train(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_detector(args: argparse.Namespace) -> int:
+    """``dt-highway bench detector``: the learned detector's frames per second on the CPU."""
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
     except (FileNotFoundError, ValueError) as exc:
@@ -1163,6 +1171,7 @@ def _show_help(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """:return: the ``dt-highway`` parser, every command and its options"""
     parser = _Parser(
         prog="dt-highway",
         description="Highway driving with a cloud digital twin that tags aggressive drivers (highway-env extension).",

@@ -46,6 +46,7 @@ class SignalsSeen:
         self.signums: list[int] = []
 
     def __call__(self, signum: int, frame: Any) -> None:
+        """Record the signal (a signal handler)."""
         self.signums.append(signum)
 
     @property

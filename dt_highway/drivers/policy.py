@@ -94,6 +94,7 @@ class PolicyDriver(Driver):
         self.zeroed = tuple(self.features.index(n) for n in names)
 
     def params(self) -> dict[str, Any]:
+        """The policy's algorithm, observation, action, timesteps trained and package versions (for the trial log)."""
         return {"algorithm": self.config.algorithm, "observation": self.config.observation, "action": self.config.action,
                 "timesteps": self.meta.get("timesteps_done"), "versions": self.meta.get("versions")}
 
@@ -128,6 +129,7 @@ class PolicyDriver(Driver):
                               f"menu has {menu_space}")
 
     def act(self, perception: Perception) -> np.ndarray:
+        """The policy's action on the observation in ``perception`` (deterministic), as a ``Driver`` action."""
         if self.menu is None:
             self.reset(0)
         assert self.menu is not None

@@ -93,9 +93,11 @@ class IDMDriver(Driver):
         self.idm = idm
 
     def params(self) -> dict[str, Any]:
+        """The IDM parameters (for the trial log)."""
         return {"idm": self.idm.model_dump()}
 
     def act(self, perception: Perception) -> np.ndarray:
+        """IDM's acceleration behind the car ahead in the ego's lane; never changes lane."""
         s = _surroundings(perception)
         lead = s.ahead[0]
         a = idm_accel(s.speed_mps, lead.gap_m, s.speed_mps - lead.speed_mps, self.idm)
@@ -117,12 +119,15 @@ class RandomDriver(Driver):
         self.rng = np.random.default_rng(0)
 
     def params(self) -> dict[str, Any]:
+        """The driver's parameters (for the trial log)."""
         return self.p.model_dump()
 
     def reset(self, seed: int) -> None:
+        """Seed the random choices."""
         self.rng = np.random.default_rng(seed)
 
     def act(self, perception: Perception) -> np.ndarray:
+        """A uniform random acceleration, and a lane change with probability ``lane_change_prob``."""
         a = self.rng.uniform(self.accel_min_mps2, self.accel_max_mps2)
         lane = float(self.rng.choice([-1.0, 1.0])) if self.rng.random() < self.lane_change_prob else 0.0
         return np.array([a, lane])
@@ -158,9 +163,11 @@ class HumanDriver(Driver):
         """The reaction time used at the last decision [s]"""
 
     def params(self) -> dict[str, Any]:
+        """The driver's parameters (for the trial log)."""
         return self.p.model_dump()
 
     def reset(self, seed: int) -> None:
+        """Seed the error processes and forget what the driver saw, its last lane change and any alert."""
         self.rng = np.random.default_rng(seed)
         self._memory.clear()
         self._w = self.rng.normal(0.0, 1.0, 2)  # stationary start of the error processes
@@ -223,6 +230,7 @@ class HumanDriver(Driver):
         return now.t_s <= self._alert_until_s, set(self._threat_until_s)
 
     def act(self, perception: Perception) -> np.ndarray:
+        """The human-like driver's acceleration and lane choice at this step, from what it perceives."""
         p = self.p
         now = _surroundings(perception)
         dt = 0.0 if self._t_prev is None else now.t_s - self._t_prev

@@ -145,14 +145,20 @@ class DriverAction(ActionType):
         self.accel_max_mps2 = float(accel_max_mps2)
 
     def space(self) -> spaces.Space:
+        """:return: ``Box([accel_min, -1], [accel_max, 1])``: acceleration [m/s^2] and lane -1..1"""
         return spaces.Box(np.array([self.accel_min_mps2, -1.0], dtype=np.float32),
                           np.array([self.accel_max_mps2, 1.0], dtype=np.float32), dtype=np.float32)
 
     @property
     def vehicle_class(self) -> type:
+        """The ego's class: :class:`DrivenVehicle`."""
         return DrivenVehicle
 
     def act(self, action: Any) -> None:
+        """Hold the acceleration (clipped to the limits) and request the lane change of ``[acceleration m/s^2, lane -1..1]``.
+
+        :raises ValueError: one line, on an action of another shape or not finite
+        """
         a = np.asarray(action, dtype=float).reshape(-1)
         if a.shape != (2,) or not np.isfinite(a).all():
             raise ValueError(f"a Driver action is [acceleration m/s^2, lane -1..1] (got {action!r})")
@@ -200,6 +206,7 @@ class DiscreteDriverAction(DriverAction):
                                     reaction_time_s, brake_limit_mps2)
 
     def space(self) -> spaces.Discrete:
+        """:return: one choice per menu entry"""
         return spaces.Discrete(self.choices.size)
 
     def reset(self) -> None:
@@ -213,4 +220,5 @@ class DiscreteDriverAction(DriverAction):
         return self.choices.action(k, perception)
 
     def act(self, action: Any) -> None:
+        """Carry out the menu entry ``action`` names (see :meth:`driver_action`)."""
         super().act(self.driver_action(action))

@@ -297,6 +297,7 @@ class DTHighwayEnv(HighwayEnv):
     # ------------------------------------------------------------------ configuration
     @classmethod
     def default_config(cls) -> dict:
+        """:return: highway-env's flat configuration of the default :class:`~dt_highway.config.DTConfig`"""
         return cls._flat_highway_config(DTConfig())
 
     @staticmethod
@@ -355,6 +356,7 @@ class DTHighwayEnv(HighwayEnv):
             self.edit_highway_config(changed)
 
     def define_spaces(self) -> None:
+        """Build the observation type (highway-env's, ours, or the camera's) and the action type, and their spaces."""
         obs_cfg = dict(self.config["observation"])
         self._highway_env_observation: dict[str, Any] | None = None  # highway-env's own type: its table
         if obs_cfg.get("type") == "Camera":
@@ -863,6 +865,7 @@ class DTHighwayEnv(HighwayEnv):
         ]
 
     def close(self) -> None:
+        """Write the twin's drivers to its store file (when one is configured), then close highway-env's window."""
         if self.twin is not None:
             self.twin.close()
         super().close()

@@ -62,6 +62,7 @@ class FlatConfig(dict[str, Any]):
         self._edit({key: value})
 
     def update(self, *args: Any, **kwargs: Any) -> None:
+        """Validate and apply the keys given, as one edit."""
         self._edit(dict(*args, **kwargs))
 
     def __ior__(self, other: Any) -> FlatConfig:  # type: ignore[override,misc]  # dict's |= returns Self
@@ -69,6 +70,7 @@ class FlatConfig(dict[str, Any]):
         return self
 
     def setdefault(self, key: str, default: Any = None) -> Any:
+        """Set ``key`` (validated) if it has no value; :return: its value."""
         if key not in self:
             self[key] = default
         return self[key]
@@ -80,14 +82,17 @@ class FlatConfig(dict[str, Any]):
         raise self._refuse(key)
 
     def pop(self, key: str, *default: Any) -> Any:
+        """Refused: every key has a value. :return: ``default`` for a key the configuration does not have."""
         if key not in self and default:
             return default[0]
         raise self._refuse(key)
 
     def popitem(self) -> tuple[str, Any]:
+        """Refused: every key has a value."""
         raise self._refuse(next(iter(self), "?"))
 
     def clear(self) -> None:
+        """Refused: every key has a value."""
         raise self._refuse("...")
 
     def __reduce__(self) -> tuple[Any, ...]:

@@ -110,6 +110,7 @@ class TwinTaggedKinematics(_KinematicsPlus):
             self.features = self.features + self.INTENT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
+        """The twin's columns of each row's car, from the twin view the ego received (zeros: a car the twin lacks)."""
         view: TwinView | None = self.env.twin_view
         if view is None or not view.vehicles or len(rows) < 2:
             return
@@ -168,6 +169,7 @@ class OverlayKinematics(_KinematicsPlus):
             self.features = self.features + self.THREAT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
+        """The overlay's columns: 1 for each row's car under a mark the driver sees (and its threat cue)."""
         adas = self.env.adas_output()
         if adas is None or not adas["overlay"]:
             return
@@ -207,6 +209,7 @@ class CameraObservation(ObservationType):
         self.depth = bool(depth)
 
     def space(self) -> spaces.Space:
+        """:return: the camera's RGB image (and its depth, with ``depth``), ``uint8``"""
         cam = self.env.dt_config.camera
         parts: dict[str, spaces.Space] = {
             "rgb": spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 3), dtype=np.uint8)
@@ -216,6 +219,7 @@ class CameraObservation(ObservationType):
         return spaces.Dict(parts)
 
     def observe(self) -> dict[str, np.ndarray]:
+        """:return: the camera's RGB image (and its depth scaled to ``uint8`` over the camera's range)"""
         image = self.env.camera_image()
         out = {"rgb": image.rgb}
         if self.depth:
@@ -239,6 +243,7 @@ class ResizedCamera:
         self.env, self.size, self.depth = env, size, depth
 
     def space(self) -> spaces.Dict:
+        """:return: the resized picture (and its depth), ``uint8``"""
         w, h = self.size
         parts: dict[str, spaces.Space] = {"rgb": spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)}
         if self.depth:
@@ -246,6 +251,7 @@ class ResizedCamera:
         return spaces.Dict(parts)
 
     def observe(self) -> dict[str, np.ndarray]:
+        """:return: the picture the driver sees, overlay drawn, resized (and its depth)"""
         image = self.env.camera_image()
         rgb = image.rgb
         adas = self.env.adas_output()

@@ -81,6 +81,7 @@ class Reseed(gym.Wrapper):
         return seed
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        """Reset with the next seed of the sequence (or ``seed``, when given)."""
         return self.env.reset(seed=self._seed_for(seed), options=options)
 
 
@@ -131,6 +132,7 @@ class PrerollAhead(Reseed):
         return answer if isinstance(answer, tuple) else None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        """Reset, from the helper's computed pre-roll when it matches the seed (else computed here), and ask for the next."""
         seed = self._seed_for(seed)
         ready = None
         if self._pending is not None:
@@ -180,6 +182,7 @@ class PrerollAhead(Reseed):
             helper.wait()
 
     def close(self) -> None:
+        """Stop the helper process, then close the env."""
         self._stop_helper()
         super().close()
 

@@ -192,12 +192,17 @@ class SafetyReward(gym.Wrapper):
         self.terms = RewardTerms(config, _sim_step_s(env))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        """Reset the env and the reward's terms."""
         obs, info = self.env.reset(seed=seed, options=options)
         self.terms.dt_s = _sim_step_s(self.env)  # a reset may reconfigure
         self.terms.reset(_ego_x(info))
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
+        """Step the env; the reward is highway-env's plus the safety terms (their parts in ``info["reward_terms"]``).
+
+        :raises ValueError: on an env without ``info["safety"]``
+        """
         obs, reward, terminated, truncated, info = self.env.step(action)
         safety = info.get("safety")
         if safety is None:

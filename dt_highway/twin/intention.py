@@ -610,6 +610,7 @@ class LearnedIntention:
         return np.stack([np.interp(self.horizons_s, trained, e) for e in np.eye(len(trained))])
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
+        """:return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         return choice_probabilities(self.utility(inputs), inputs.side_ok)
@@ -649,6 +650,7 @@ class PhysicsIntention:
     moving_mps: float = 0.5
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
+        """:return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         off = inputs.side[:, :, SIDE_FEATURES.index("offset_05")]

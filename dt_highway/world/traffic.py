@@ -176,6 +176,10 @@ class TypedDriverVehicle(FastIDMVehicle):
         """Keep the driver type's gains (highway-env's version would only redraw DELTA)."""
 
     def steering_control(self, target_lane_index: LaneIndex) -> float:
+        """Steer toward the target lane with this driver's lateral gain and lateral speed limit.
+
+        :return: the steering angle [rad]
+        """
         lane = self.road.network.get_lane(target_lane_index)
         x, y = self.position.tolist()
         s, offset = local_coordinates(lane, x, y)
@@ -196,6 +200,7 @@ class TypedDriverVehicle(FastIDMVehicle):
         super().change_lane_policy()
 
     def act(self, action: dict | str | None = None) -> None:
+        """Try a cut-in when one is due, then highway-env's IDM and MOBIL, then a dangerous cut-in's brake."""
         if self.cut_in is not None and not self.crashed:
             self.cut_in.maybe_cut_in(self)
         super().act(action)
@@ -205,6 +210,7 @@ class TypedDriverVehicle(FastIDMVehicle):
                 self.action["acceleration"] = min(self.action["acceleration"], brake)
 
     def step(self, dt: float) -> None:
+        """Advance the driver's clock and the vehicle by ``dt`` [s]."""
         self.clock_s += dt
         super().step(dt)
 
@@ -326,6 +332,11 @@ class CutInPolicy:
         return -self.brake_mps2
 
     def maybe_cut_in(self, me: TypedDriverVehicle) -> None:
+        """Start a cut-in in front of a victim in a neighbouring lane when an attempt is open and the gap fits;
+        past the attempt's patience, weave into a safe neighbouring lane instead.
+
+        :param me: the driver this policy drives
+        """
         now = me.clock_s
         if now < self.next_attempt_s or me.lane_index != me.target_lane_index:
             return
