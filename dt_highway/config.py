@@ -52,9 +52,17 @@ class ConfigError(ValueError):
 
 
 class _Section(BaseModel):
-    """Base of every config section: unknown keys are errors, assignment is validated."""
+    """Base of every config section: unknown keys are errors, and a configuration cannot change once
+    validated (a change goes through :func:`merge`, which checks the rules across sections too)."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        """Refused, in one line: a section set on its own would skip the rules across sections (fusion
+        needs the camera...) and the env would not see it."""
+        raise ConfigError(f"the configuration cannot be changed in place ({type(self).__name__}.{name} = {value!r}): "
+                          "pass the change to env.unwrapped.configure({'section': {'key': value}}) (applied at the "
+                          "next reset), gym.make(..., config=...) or dt_highway.config.merge")
 
 
 class FrozenSettings(BaseModel):

@@ -371,3 +371,15 @@ def test_the_reward_and_screen_checks_keep_every_sensible_setting():
     assert load_config(None, ["highway.normalize_reward=false", "highway.collision_reward=0.5"])
     assert load_config(None, ["highway.centering_position=[0,1]", "highway.scaling=0.05", "twin.downlink.radius_m=1e9"])
     assert load_config(None, ["highway.scaling=100", "traffic.population_seed=0"])
+
+
+def test_a_validated_configuration_cannot_be_changed_in_place():
+    """A section set on its own would skip the rules across sections (fusion needs the camera): one line,
+    which says how to change it; the configuration is as it was."""
+    cfg = load_config(None, [])
+    for section, key, value in [(cfg.fusion, "enabled", True), (cfg.highway, "lanes_count", 2), (cfg, "seed", 3)]:
+        old = getattr(section, key, None)
+        with pytest.raises(ConfigError, match=r"^the configuration cannot be changed in place .*configure") as err:
+            setattr(section, key, value)
+        assert "\n" not in str(err.value)
+        assert getattr(section, key, None) == old

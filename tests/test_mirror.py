@@ -132,7 +132,7 @@ def test_renderers_are_kept_per_size_and_remade_when_the_camera_changes(env):
     a, b = mirrors_for(env, (400, 100)), mirrors_for(env, (500, 120))
     assert mirrors_for(env, (400, 100)) is a and mirrors_for(env, (500, 120)) is b  # both sizes kept
     assert a.renderers["rear"].camera.intrinsics.width_px == round(400 * 0.42) - 4
-    env.dt_config.camera.mount.height_m = 1.6  # the driver's eye higher: the rear-view mirror follows
+    env.configure({"camera": {"mount": {"height_m": 1.6}}})  # the driver's eye higher: the rear-view mirror follows
     c = mirrors_for(env, (400, 100))
     assert c is not a and c.renderers["rear"].camera.mount.height_m == 1.6
 
