@@ -16,6 +16,10 @@ from dt_highway.env import ENV_ID, DTHighwayEnv
 from dt_highway.metrics.trial_log import Trial, load_trial
 
 if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv")
+    # Without gymnasium's passive checker: the env checks its own resets, actions and observations (one-line
+    # errors), and gymnasium 1.4's checker breaks every later step of an env whose first reset was refused
+    # (its unpack of the data it never got raises TypeError while the simulation goes on). Asked for
+    # (gym.make(..., disable_env_checker=False)), it is there; gymnasium's check_env passes on the env.
+    gym.register(id=ENV_ID, entry_point="dt_highway.env:DTHighwayEnv", disable_env_checker=True)
 
 __all__ = ["ConfigError", "DTConfig", "DTHighwayEnv", "ENV_ID", "Trial", "load_config", "load_trial", "__version__"]

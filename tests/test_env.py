@@ -14,7 +14,7 @@ import pytest
 import dt_highway  # noqa: F401
 from dt_highway.config import ConfigError, load_config
 from dt_highway.drivers.policy import load_policy
-from dt_highway.env import DTHighwayEnv
+from dt_highway.env import ENV_ID, DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
 from dt_highway.world.traffic import AGGRESSIVE, NORMAL
 
@@ -657,4 +657,17 @@ def test_an_action_the_space_cannot_hold_is_one_line_and_leaves_the_env_as_it_wa
     good = 1 if action_type["type"] in ("DiscreteMetaAction", "DiscreteAction") else np.zeros(2)
     obs, reward, *_ = env.step(good)
     assert np.isfinite(reward) and np.isfinite(np.asarray(obs, dtype=float)).all()
+    env.close()
+
+
+def test_a_refused_first_reset_leaves_the_made_env_usable():
+    """gymnasium 1.4's passive checker, on a gym.make env whose first reset fails, made every later step
+    raise TypeError while the simulation went on: the env is registered without it."""
+    env = gym.make(ENV_ID, config={"highway": {"duration": 2, "vehicles_count": 5}, "twin": {"preroll_s": 0.0}})
+    with pytest.raises(gym.error.Error, match="seed"):
+        env.reset(seed=-1)
+    env.reset(seed=0)
+    for k in (1, 2):
+        obs, reward, terminated, truncated, info = env.step(0)
+        assert obs.shape == env.observation_space.shape and env.unwrapped.time == pytest.approx(k)
     env.close()
