@@ -605,6 +605,9 @@ class StoreConfig(_Section):
             what = "a directory" if Path(path).is_dir() else "not a regular file"
             raise PydanticCustomError("not_a_file", "must name a SQLite file, new or existing (this is {what})",
                                       {"got": path, "what": what})
+        if path and not Path(path).parent.is_dir():
+            raise PydanticCustomError("no_folder", "must name a SQLite file in an existing folder ({folder} is none)",
+                                      {"got": path, "folder": str(Path(path).parent)})
         return path
 
 

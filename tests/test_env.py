@@ -2,8 +2,11 @@
 
 import gc
 import json
+import os
 import shutil
 import sqlite3
+import subprocess
+import sys
 from contextlib import closing
 from pathlib import Path
 
@@ -671,3 +674,27 @@ def test_a_refused_first_reset_leaves_the_made_env_usable():
         obs, reward, terminated, truncated, info = env.step(0)
         assert obs.shape == env.observation_space.shape and env.unwrapped.time == pytest.approx(k)
     env.close()
+
+
+def test_a_script_that_never_closes_its_env_keeps_what_the_twin_learnt(tmp_path):
+    """twin.store.path is written at close, at a seeded reset, and when the env is collected or Python exits
+    without a close (a script or a notebook rarely closes); a close then a reset opens the file again."""
+    path = tmp_path / "twin.sqlite"
+    cfg = {"highway": {"duration": 3, "vehicles_count": 8}, "twin": {"preroll_s": 0.0, "store": {"path": str(path)}},
+           "traffic": {"population_seed": 1}}
+    code = (f"import gymnasium as gym, dt_highway\nenv = gym.make('dt-highway-v0', config={cfg!r})\n"
+            "env.reset(seed=0)\nfor _ in range(3):\n    env.step(0)\nprint(len(env.unwrapped.twin.tagger.records))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
+    learnt = int(out.stdout.split()[-1])
+    assert learnt > 0
+    with sqlite3.connect(path) as con:
+        assert con.execute("SELECT count(*) FROM drivers").fetchone() == (learnt,)
+    env = DTHighwayEnv(config=cfg)
+    assert len(env.twin.tagger.records) == learnt  # read back
+    env.close()
+    env.reset(seed=0)  # after a close: the twin is made again from the file
+    assert len(env.twin.tagger.records) == learnt
+    env.close()
+    with pytest.raises(ConfigError, match="must name a SQLite file in an existing folder"):
+        DTHighwayEnv(config={"twin": {"store": {"path": str(tmp_path / "no-such-folder" / "twin.sqlite")}}})

@@ -1,11 +1,13 @@
 """Uplink, store, tagger, cloud and downlink, on hand-made inputs."""
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from dt_highway.config import DownlinkConfig, TaggerConfig, TwinConfig, UplinkConfig
+from dt_highway.config import ConfigError, DownlinkConfig, TaggerConfig, TwinConfig, UplinkConfig
 from dt_highway.twin import (
     CloudTwin,
     Downlink,
@@ -161,10 +163,41 @@ def test_sqlite_store_round_trip(tmp_path):
     rec = twin.tagger.record(5, 10.0)
     rec.n_sudden, rec.observed_s = 3, 90.0
     twin.now_s = 123.0
-    save_records(path, twin)
+    twin.close()  # writes the file and lets another twin open it
     again = CloudTwin(cfg, HighwayMap(4.0, 3))
     assert again.tagger.records[5].n_sudden == 3
     assert again.now_s == 123.0
+    again.close()
+    save_records(path, again)  # the writer alone, as a tool may use it
+    assert CloudTwin(cfg, HighwayMap(4.0, 3)).now_s == 123.0
+
+
+def test_a_store_file_serves_one_twin_at_a_time(tmp_path):
+    """A second twin on the same file (in this process or another) would replace what the first wrote at its
+    close: refused in one line until the first closes; an empty file (a made temporary file) is a new store."""
+    path = tmp_path / "twin.sqlite"
+    path.write_bytes(b"")
+    cfg = TwinConfig(store={"path": str(path)})
+    first = CloudTwin(cfg, HighwayMap(4.0, 3))
+    assert first.tagger.records == {}
+    with pytest.raises(ConfigError, match=r"^twin.store.path '.*' is in use by another env .*own file") as err:
+        CloudTwin(cfg, HighwayMap(4.0, 3))
+    assert "\n" not in str(err.value)
+    code = ("from dt_highway.twin.cloud import lock_store\ntry:\n    lock_store(%r)\nexcept ValueError as e:\n"
+            "    print(e)" % str(path))
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "is in use by another env" in other.stdout
+    first.close()
+    CloudTwin(cfg, HighwayMap(4.0, 3)).close()
+
+
+def test_a_foreign_store_file_leaves_no_hold_on_it(tmp_path):
+    path = tmp_path / "junk.sqlite"
+    path.write_bytes(b"this is not sqlite at all" * 100)
+    cfg = TwinConfig(store={"path": str(path)})
+    for _ in range(2):  # the same error again, not "in use"
+        with pytest.raises(ConfigError, match="not a dt-highway twin store"):
+            CloudTwin(cfg, HighwayMap(4.0, 3))
 
 
 def test_sqlite_store_rejects_a_foreign_file(tmp_path):

@@ -25,6 +25,7 @@ import os
 import site
 import sysconfig
 import traceback
+import weakref
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
@@ -261,6 +262,9 @@ class DTHighwayEnv(HighwayEnv):
         self.dt_config = DTConfig()
         self.population: DriverPopulation | None = None
         self.twin: CloudTwin | None = None
+        self._twin_closer: weakref.finalize | None = None
+        """Closes the twin (writing ``twin.store.path``) at :meth:`close`, or when the env is collected or the
+        interpreter exits without a close (a script or notebook that never calls it keeps what the twin learnt)"""
         self.uplink: Uplink | None = None
         self.downlink: Downlink | None = None
         self.traffic: TrafficManager | None = None
@@ -473,8 +477,7 @@ class DTHighwayEnv(HighwayEnv):
             if self.twin is not None:
                 self.twin.config = twin  # links, radius, pre-roll: no need to forget the drivers
             return
-        if self.twin is not None:
-            self.twin.close()
+        self._close_twin()
         tcfg = self.dt_config.traffic
         if tcfg.population_seed is not None:
             pop_seed = np.random.SeedSequence(tcfg.population_seed)
@@ -489,7 +492,19 @@ class DTHighwayEnv(HighwayEnv):
         hw = self.dt_config.highway
         self.road_map = HighwayMap(StraightLane.DEFAULT_WIDTH, hw.lanes_count)
         self.twin = CloudTwin(self.dt_config.twin, self.road_map) if self.dt_config.twin.enabled else None
+        if self.twin is not None and self.dt_config.twin.store.path:
+            self._twin_closer = weakref.finalize(self, self.twin.close)
         self._built_for = key
+
+    def _close_twin(self) -> None:
+        """Close the twin (once): it writes its store file, when one is configured (a reset after this one
+        makes the twin again, from that file)."""
+        if self._twin_closer is not None:
+            self._twin_closer()
+            self._twin_closer = None
+            self._built_for = None
+        elif self.twin is not None:
+            self.twin.close()
 
     def _reset(self) -> None:
         self._safety_on = False
@@ -866,6 +881,5 @@ class DTHighwayEnv(HighwayEnv):
 
     def close(self) -> None:
         """Write the twin's drivers to its store file (when one is configured), then close highway-env's window."""
-        if self.twin is not None:
-            self.twin.close()
+        self._close_twin()
         super().close()

@@ -14,6 +14,12 @@ import math
 import sqlite3
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import IO
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: a store file is not locked against a second env
+    fcntl = None  # type: ignore[assignment]
 
 import numpy as np
 
@@ -107,8 +113,14 @@ class CloudTwin:
         """The newest intention estimate of every vehicle (``None`` before the first, or with the model off)"""
         self._next_intent_s = -math.inf
         self._intention_estimator()
+        self._lock: IO[bytes] | None = None
         if config.store.path:
-            load_records(config.store.path, self)
+            self._lock = lock_store(config.store.path)
+            try:
+                load_records(config.store.path, self)
+            except ConfigError:
+                self._unlock()
+                raise
 
     def _intention_estimator(self) -> IntentionEstimator | None:
         """The estimator of the configured ``twin.intention`` (remade when that section changes)."""
@@ -194,9 +206,17 @@ class CloudTwin:
         return tuple(out)
 
     def close(self) -> None:
-        """Write the drivers' records to the SQLite file, if one is configured."""
-        if self.config.store.path:
-            save_records(self.config.store.path, self)
+        """Write the drivers' records to the SQLite file, if one is configured, and let another twin open it."""
+        if self.config.store.path and self._lock is not None:
+            try:
+                save_records(self.config.store.path, self)
+            finally:
+                self._unlock()
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            self._lock.close()  # the lock goes with the file's descriptor
+            self._lock = None
 
 
 class Downlink:
@@ -242,6 +262,28 @@ class Downlink:
 
 
 # ----------------------------------------------------------------------------- SQLite persistence
+def lock_store(path: str | Path) -> IO[bytes]:
+    """Open (or create) a store file and hold it for one twin: a second twin on the same file, in this process or
+    another, would replace what the first writes at its close.
+
+    :return: the open file, whose closing releases it
+    :raises ConfigError: one line, when the file cannot be opened or another twin holds it
+    """
+    try:
+        fh = open(path, "a+b")  # held until the twin closes
+    except OSError as exc:
+        raise ConfigError(f"twin.store.path '{path}' cannot be opened: {exc.strerror or exc}") from None
+    if fcntl is not None:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            fh.close()
+            raise ConfigError(f"twin.store.path '{path}' is in use by another env (in this process or another): "
+                              "give each env its own file (the last to close would replace what the others "
+                              "wrote)") from None
+    return fh
+
+
 def save_records(path: str | Path, twin: CloudTwin) -> None:
     """Write every driver record and the twin clock to a SQLite file (replacing its content).
 
@@ -268,7 +310,7 @@ def save_records(path: str | Path, twin: CloudTwin) -> None:
 
 
 def load_records(path: str | Path, twin: CloudTwin) -> None:
-    """Read driver records written by :func:`save_records` (a missing file is an empty memory)."""
+    """Read driver records written by :func:`save_records` (a missing or empty file is an empty memory)."""
     if not Path(path).exists():
         return
     try:
@@ -276,6 +318,8 @@ def load_records(path: str | Path, twin: CloudTwin) -> None:
     except sqlite3.Error as exc:
         raise ConfigError(f"twin.store.path '{path}' cannot be opened: {exc}") from None
     try:
+        if not con.execute("SELECT name FROM sqlite_master").fetchall():
+            return  # an empty file (as a new store, or a made temporary file, starts): an empty memory
         row = con.execute("SELECT value FROM meta WHERE key = 'now_s'").fetchone()
         if row:
             twin.now_s = float(row[0])
