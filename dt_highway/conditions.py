@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config, override_value
+from dt_highway.config import ConfigError, DTConfig, check_overrides, deep_merge, load_config, override_value
 
 CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
 """Every condition a study or a keyboard session can run"""
@@ -95,7 +95,7 @@ def driver_config(scenario: str | None, overrides: Sequence[str], condition: str
     :param driver_overrides: what the driver adds to the configuration
     :raises ConfigError: one line, on a bad scenario, condition or override
     """
-    cfg = load_config(scenario, list(overrides), deep_merge(condition_config(condition), dict(driver_overrides)))
+    cfg = load_config(scenario, check_overrides(overrides), deep_merge(condition_config(condition), dict(driver_overrides)))
     check_driver_action(cfg)
     return cfg
 

@@ -1221,6 +1221,24 @@ def dotted_tree(key: str, value: Any) -> dict[str, Any]:
     return tree
 
 
+def check_overrides(overrides: object) -> tuple[str, ...]:
+    """The ``--set`` strings of a Python call, checked: a list (or tuple) of ``dotted.key=value`` strings.
+
+    :return: them, as a tuple
+    :raises ConfigError: one line, for a lone string (it would be read letter by letter), a dict or a list of other
+        things
+    """
+    if isinstance(overrides, str):
+        raise ConfigError(f"overrides must be a list of 'dotted.key=value' strings (got the string {overrides!r}: "
+                          "put it in a list)")
+    if not isinstance(overrides, (list, tuple)) or not all(isinstance(o, str) for o in overrides):
+        got = type(overrides).__name__ if not isinstance(overrides, (list, tuple)) else \
+            f"a {type(overrides).__name__} holding {next(type(o).__name__ for o in overrides if not isinstance(o, str))}"
+        raise ConfigError(f"overrides must be a list of 'dotted.key=value' strings, e.g. ['highway.duration=60'] "
+                          f"(got {got})")
+    return tuple(overrides)
+
+
 def load_config(
     scenario: str | Path | None = None,
     overrides: list[str] | tuple[str, ...] = (),
@@ -1234,6 +1252,11 @@ def load_config(
     :return: the validated configuration
     :raises ConfigError: on any bad layer
     """
+    overrides = check_overrides(overrides)
+    if scenario is not None and not isinstance(scenario, (str, Path)):
+        raise ConfigError(f"scenario must be a TOML file's path (got {type(scenario).__name__}): pass a tree as extra")
+    if extra is not None and not isinstance(extra, dict):
+        raise ConfigError(f"extra must be a table of keys (got {type(extra).__name__})")
     tree: dict[str, Any] = {}
     if scenario is not None:
         tree = deep_merge(tree, _lift_highway_keys(read_scenario(scenario)))

@@ -484,6 +484,14 @@ def _plain(x: Any) -> Any:
     return None if isinstance(x, float) and math.isnan(x) else x
 
 
+def _check_conditions(metrics: pd.DataFrame, *names: str) -> None:
+    """Refuse a condition no trial of ``metrics`` ran in (its trials may all be excluded: that is no mistake)."""
+    held = sorted({str(c) for c in metrics["condition"].dropna()}) if "condition" in metrics else []
+    for name in names:
+        if name not in held:
+            raise ValueError(f"no trial of condition {name!r} in these metrics (conditions: {', '.join(held) or 'none'})")
+
+
 def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
                  names: Sequence[str] = SUMMARY_METRICS) -> dict[str, Any]:
     """Wilcoxon signed-rank and paired t-test of ``b - a`` per metric, with Cohen's ``d_z``.
@@ -495,7 +503,9 @@ def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
     :param b: the condition tested against it
     :param names: the columns tested (a column without pairs is left out)
     :return: per metric: ``n_pairs``, ``mean_diff``, ``wilcoxon_p``, ``ttest_p``, ``effect_size_dz``
+    :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
     """
+    _check_conditions(metrics, a, b)
     done = _completed(metrics)
     out: dict[str, Any] = {}
     for m in names:
@@ -524,7 +534,9 @@ def compare(metrics: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
 
     :return: ``a``, ``b``, ``n_pairs``, ``small_sample`` (fewer than :data:`MIN_PAIRS` pairs),
         ``cut_short_pairs`` (pair keys), ``tests``
+    :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
     """
+    _check_conditions(metrics, a, b)
     done = _completed(metrics)
     sub = done[done["condition"].isin([a, b])]
     counts = sub.groupby("key")["condition"].nunique()

@@ -40,7 +40,7 @@ import gymnasium as gym
 import numpy as np
 
 from dt_highway.conditions import check_mode_override, condition_config, driver_config
-from dt_highway.config import ConfigError, find_file
+from dt_highway.config import ConfigError, check_overrides, find_file
 from dt_highway.drivers import load_driver
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.env.seat import DriverSeat
@@ -249,6 +249,9 @@ def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, s
     """
     if isinstance(conditions, str):
         raise ConfigError(f"conditions must be a list of names, e.g. ['baseline', 'adas'] (got the string {conditions!r})")
+    if not isinstance(conditions, (list, tuple)):
+        raise ConfigError(f"conditions must be a list of names, e.g. ['baseline', 'adas'] (got {type(conditions).__name__})")
+    overrides = check_overrides(overrides)
     if whole_number(trials) is None:
         raise ConfigError(f"--trials must be a whole number >= 1 (got {trials!r})")
     if whole_number(seed) is None or seed < 0:

@@ -12,8 +12,10 @@ import pytest
 
 from dt_highway.cli import main
 from dt_highway.config import ConfigError, load_config
+from dt_highway.evaluation.rl import evaluate
 from dt_highway.rl.config import TrainConfig, load_train_config
 from dt_highway.rl.train import rollout_steps, round_timesteps
+from dt_highway.study import plan as study_plan
 
 TINY = ["--set", "highway.vehicles_count=10", "--set", "highway.duration=4", "--set", "twin.preroll_s=4",
         "--set", "highway.lanes_count=3", "--set", "traffic.population_size=40"]
@@ -136,3 +138,27 @@ def test_bench_drive_opens_its_window_on_the_display():
         xvfb.wait()
     assert shown.returncode == 0, shown.stderr
     assert shown.stdout.rstrip().endswith("; video driver x11")
+
+
+# ----------------------------------------------------------------------------- the Python API's arguments
+@pytest.mark.parametrize(("call", "words"), [
+    (lambda: load_config(None, "highway.duration=3"),
+     "overrides must be a list of 'dotted.key=value' strings (got the string 'highway.duration=3': put it in a list)"),
+    (lambda: load_config(None, {"highway.duration": 3}), "(got dict)"),
+    (lambda: load_config(None, None), "(got NoneType)"),
+    (lambda: load_config(None, ["highway.duration=3", 3]), "(got a list holding int)"),
+    (lambda: load_config({"highway": {}}), "scenario must be a TOML file's path (got dict): pass a tree as extra"),
+    (lambda: study_plan("x", "agents/idm.toml", ["baseline"], 1, 0, overrides="highway.duration=3"),
+     "put it in a list"),
+    (lambda: study_plan("x", "agents/idm.toml", None, 1, 0), "conditions must be a list of names"),
+    (lambda: evaluate("agents/idm.toml", 1.5, 0), "--episodes must be a whole number >= 1 (got 1.5)"),
+    (lambda: evaluate("agents/idm.toml", 1, None), "--seed must be a whole number >= 0 (got None)"),
+    (lambda: evaluate(3, 1, 0), "the driver must be a file's path"),
+    (lambda: evaluate("agents/idm.toml", 1, 0, overrides="highway.duration=3"), "put it in a list"),
+])
+def test_the_python_calls_say_what_is_wrong_with_an_argument(call, words):
+    """A lone string was read letter by letter ('--set expects dotted.key=value (got 'h')', at each trial), a dict
+    lost its values, a float count or a None seed was a TypeError deep inside."""
+    with pytest.raises(ConfigError) as err:
+        call()
+    assert words in str(err.value) and "\n" not in str(err.value)

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from dt_highway.metrics.trial_log import TrialWriter
-from dt_highway.report import comparisons, condition_order, write_report
+from dt_highway.report import compare, comparisons, condition_order, paired_tests, write_report
 
 HZ = 2  # samples every 0.5 s
 COLLISION = {"partner_id": 9, "partner_type": "aggressive", "collision_kind": "side_swipe", "lane_changer": "partner",
@@ -92,3 +92,12 @@ def test_conflicts_per_hour_and_collision_kinds_per_condition(study):
     assert conds["adas-threat"]["collision_kinds"] == {"side_swipe: partner's lane change": 1}
     assert conds["baseline"]["collision_kinds"] == {} and conds["adas-threat"]["collisions"] == 1
     assert conds["baseline"]["conflicts_2d_per_h"]["mean"] == pytest.approx((360.0 + 0.0) / 2)  # per trial, then mean
+
+
+def test_a_condition_no_trial_ran_in_is_one_line(tmp_path):
+    metrics = pd.DataFrame({"condition": ["baseline", "adas"], "key": ["0", "0"], "status": ["completed"] * 2,
+                            "speed_mean_kmh": [80.0, 81.0]})
+    for call in (lambda: paired_tests(metrics, "baseline", "ADAS"), lambda: compare(metrics, "nope", "adas")):
+        with pytest.raises(ValueError, match=r"^no trial of condition '(ADAS|nope)' in these metrics \(conditions: "
+                                             r"adas, baseline\)$"):
+            call()

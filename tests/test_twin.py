@@ -183,8 +183,8 @@ def test_a_store_file_serves_one_twin_at_a_time(tmp_path):
     with pytest.raises(ConfigError, match=r"^twin.store.path '.*' is in use by another env .*own file") as err:
         CloudTwin(cfg, HighwayMap(4.0, 3))
     assert "\n" not in str(err.value)
-    code = ("from dt_highway.twin.cloud import lock_store\ntry:\n    lock_store(%r)\nexcept ValueError as e:\n"
-            "    print(e)" % str(path))
+    code = (f"from dt_highway.twin.cloud import lock_store\ntry:\n    lock_store({str(path)!r})\n"
+            "except ValueError as e:\n    print(e)")
     other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert "is in use by another env" in other.stdout
     first.close()

@@ -31,7 +31,7 @@ from dt_highway.config import ConfigError
 from dt_highway.drivers import Driver, load_driver
 from dt_highway.drivers.policy import PolicyDriver
 from dt_highway.env.seat import DriverSeat
-from dt_highway.jsonio import dump_json
+from dt_highway.jsonio import dump_json, whole_number
 from dt_highway.metrics.safety import TTC_CAP_S, collision_label, cut_in_outcomes, trial_metrics
 
 
@@ -92,8 +92,12 @@ def evaluate(driver_path: str, episodes: int, seed: int, scenario: str | None = 
     :return: the means over episodes and the episodes themselves
     :raises ConfigError: on a bad driver, scenario, condition or count
     """
-    if episodes < 1:
-        raise ConfigError(f"--episodes must be >= 1 (got {episodes})")
+    if whole_number(episodes) is None or episodes < 1:
+        raise ConfigError(f"--episodes must be a whole number >= 1 (got {episodes!r})")
+    if whole_number(seed) is None or seed < 0:
+        raise ConfigError(f"--seed must be a whole number >= 0 (got {seed!r})")
+    if driver is None and not isinstance(driver_path, (str, Path)):
+        raise ConfigError(f"the driver must be a file's path, agents/<name>.zip or .toml (got {type(driver_path).__name__})")
     driver = driver if driver is not None else load_driver(driver_path)
     cfg = driver_config(scenario, overrides, condition, driver.config_overrides())
     env = gym.make("dt-highway-v0", config=cfg.to_dict())
