@@ -25,10 +25,13 @@ from __future__ import annotations
 import copy
 import math
 import tomllib
+import types
+import typing
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args
 
+import numpy as np
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -51,11 +54,36 @@ class ConfigError(ValueError):
     """A configuration mistake, described in one line (dotted key and what is allowed)."""
 
 
+def _number_field(annotation: Any) -> bool:
+    """Whether a field holds a number (``int``, ``float``, or either or ``None``)."""
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    return annotation in (int, float) or (bool(args) and all(a in (int, float) for a in args)
+                                           and typing.get_origin(annotation) in (typing.Union, types.UnionType))
+
+
 class _Section(BaseModel):
     """Base of every config section: unknown keys are errors, and a configuration cannot change once
     validated (a change goes through :func:`merge`, which checks the rules across sections too)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _a_number_is_a_number(cls, value: Any, info: ValidationInfo) -> Any:
+        """A number key refuses true/false and text, and a switch anything but true/false: pydantic would read
+        ``true`` as 1, ``"3"`` as 3 and ``"off"`` as false, so ``lanes_count = true`` made one lane (TOML and
+        ``--set`` give numbers and switches their own types)."""
+        if info.field_name is None:
+            return value
+        annotation = cls.model_fields[info.field_name].annotation
+        if isinstance(value, (bool, np.bool_, str)) and _number_field(annotation):
+            whole = int in (annotation, *typing.get_args(annotation)) and float not in typing.get_args(annotation)
+            raise PydanticCustomError("not_a_number", "must be {number}, not {kind}",
+                                      {"number": "a whole number" if whole else "a number",
+                                       "kind": "text" if isinstance(value, str) else "true/false"})
+        if annotation is bool and not isinstance(value, (bool, np.bool_)):
+            raise PydanticCustomError("not_a_switch", "must be true or false", {})
+        return value
 
     def __setattr__(self, name: str, value: Any) -> None:
         """Refused, in one line: a section set on its own would skip the rules across sections (fusion
@@ -1061,8 +1089,16 @@ def validate(tree: dict[str, Any]) -> DTConfig:
         raise  # unreachable, for type checkers
 
 
-def merge(config: DTConfig, update: dict[str, Any] | None) -> DTConfig:
-    """Deep-merge a nested dict into an existing configuration and validate the result."""
+def merge(config: DTConfig, update: dict[str, Any] | DTConfig | None) -> DTConfig:
+    """Deep-merge a nested dict into an existing configuration and validate the result.
+
+    :param config: the configuration
+    :param update: a (partial) tree, or a whole :class:`DTConfig` (:func:`load_config`'s), which replaces it
+    :return: the new configuration
+    :raises ConfigError: one line naming each bad key
+    """
+    if isinstance(update, DTConfig):
+        return update
     if not update:
         return config
     return validate(deep_merge(config.to_dict(), _lift_highway_keys(update)))

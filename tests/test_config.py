@@ -57,7 +57,7 @@ def test_parse_override(text, expected):
         ({"twin": {"uplink": {"rate_hz": 0}}}, ["twin.uplink.rate_hz", "> 0"]),
         ({"twin": {"uplink": {"loss_prob": 1.5}}}, ["twin.uplink.loss_prob", "< 1"]),
         ({"traffic": {"aggressive_fraction": 2}}, ["traffic.aggressive_fraction", "<= 1"]),
-        ({"highway": {"lanes_count": "four"}}, ["highway.lanes_count", "integer"]),
+        ({"highway": {"lanes_count": "four"}}, ["highway.lanes_count", "must be a whole number, not text"]),
         ({"twin": 3}, ["twin must be a table"]),
         ({"highway": {"simulation_frequency": 15, "policy_frequency": 2}}, ["multiple of policy_frequency"]),
         ({"highway": {"duration": float("inf")}}, ["highway.duration", "finite"]),
@@ -383,3 +383,31 @@ def test_a_validated_configuration_cannot_be_changed_in_place():
             setattr(section, key, value)
         assert "\n" not in str(err.value)
         assert getattr(section, key, None) == old
+
+
+def test_gym_make_takes_the_configuration_load_config_gives():
+    cfg = load_config("envs/highway-trial.toml", ["highway.duration=3"])
+    env = gym.make("dt-highway-v0", config=cfg)
+    assert env.unwrapped.dt_config == cfg and env.unwrapped.config["duration"] == 3.0
+    env.close()
+
+
+@pytest.mark.parametrize(("tree", "words"), [
+    ({"highway": {"lanes_count": True}}, "highway.lanes_count = True: must be a whole number, not true/false"),
+    ({"twin": {"uplink": {"rate_hz": True}}}, "twin.uplink.rate_hz = True: must be a number, not true/false"),
+    ({"highway": {"lanes_count": "3"}}, "highway.lanes_count = '3': must be a whole number, not text"),
+    ({"traffic": {"population_seed": False}}, "traffic.population_seed = False: must be a whole number"),
+    ({"overlay": {"sham": "yes"}}, "overlay.sham = 'yes': must be true or false"),
+    ({"ego": {"autopilot": 1}}, "ego.autopilot = 1: must be true or false"),
+])
+def test_numbers_and_switches_are_not_read_from_other_types(tree, words):
+    """pydantic's lax reading made lanes_count = true one lane, "off" false and "3" 3."""
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        validate(tree)
+
+
+def test_numbers_and_switches_of_numpy_and_python_types_are_taken():
+    import numpy as np
+    cfg = validate({"highway": {"lanes_count": np.int64(3), "duration": 4}, "ego": {"autopilot": np.True_},
+                    "traffic": {"population_seed": None}})
+    assert cfg.highway.lanes_count == 3 and cfg.highway.duration == 4.0 and cfg.ego.autopilot is True

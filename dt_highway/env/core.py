@@ -247,7 +247,8 @@ class DTHighwayEnv(HighwayEnv):
     """The dt-highway environment (see the module docstring).
 
     :param config: a (partial) nested configuration tree, merged deeply over the defaults;
-        highway-env keys may also be given at the top level
+        highway-env keys may also be given at the top level; or a whole :class:`~dt_highway.config.DTConfig`
+        (``dt_highway.load_config("envs/highway-trial.toml")``)
     :param render_mode: ``None``, ``"human"`` or ``"rgb_array"`` (highway-env's top-down view)
     """
 
@@ -258,7 +259,7 @@ class DTHighwayEnv(HighwayEnv):
     POPULATION_STREAM = 0x5EED_D21E
     """Mixed with the world seed so the population's stream differs from the episode's"""
 
-    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+    def __init__(self, config: dict | DTConfig | None = None, render_mode: str | None = None) -> None:
         self.dt_config = DTConfig()
         self.population: DriverPopulation | None = None
         self.twin: CloudTwin | None = None
@@ -314,8 +315,9 @@ class DTHighwayEnv(HighwayEnv):
             flat["other_vehicles_type"] = "dt_highway.world.vehicle.FastIDMVehicle"
         return flat
 
-    def configure(self, config: dict | None) -> None:
-        """Deep-merge a (partial) tree into the configuration and validate it.
+    def configure(self, config: dict | DTConfig | None) -> None:
+        """Deep-merge a (partial) tree into the configuration and validate it (a whole
+        :class:`~dt_highway.config.DTConfig`, as :func:`~dt_highway.config.load_config` gives, replaces it).
 
         ``self.config``, highway-env's flat dict, is derived from the tree; editing it
         (``env.unwrapped.config["lanes_count"] = 2``) edits the tree the same validated way
