@@ -336,11 +336,16 @@ class ShamOverlay:
 
     :param rng: the overlay's random generator (seeded by the env)
     :param hold_s: how long a sham mark stays on a car the fusion lost [s]
+    :raises ConfigError: one line, on a bad ``hold_s`` (as ``overlay.hold_s``)
+    :raises TypeError: when ``rng`` is no ``numpy.random.Generator``
     """
 
     def __init__(self, rng: np.random.Generator, hold_s: float = _DEFAULTS.hold_s) -> None:
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"the sham overlay draws from a numpy.random.Generator (got {type(rng).__name__}): "
+                            "numpy.random.default_rng(seed)")
         self.rng = rng
-        self.hold_s = hold_s
+        self.hold_s = validate_section(OverlayConfig, "overlay", hold_s=hold_s).hold_s
         self._slots: dict[int, _Slot] = {}
         self._t_s: float | None = None
 
@@ -580,7 +585,14 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tu
     :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (what the screen draws over the
         picture afterwards: the driving window's mirror, trial label and HUD band)
     :return: the annotated frame (same shape)
+    :raises ValueError: on a frame that is not ``uint8 (H, W, 3)``, or a mark without its ``box``
     """
+    if not isinstance(rgb, np.ndarray) or rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        shape = f"{rgb.dtype} {rgb.shape}" if isinstance(rgb, np.ndarray) else type(rgb).__name__
+        raise ValueError(f"draw_overlay draws on a uint8 (H, W, 3) RGB frame (got {shape})")
+    missing = next((i for i, item in enumerate(items) if "box" not in item), None)
+    if missing is not None:
+        raise ValueError(f"overlay mark {missing} has no 'box' [px] (marks as info['adas']['overlay'] gives them)")
     out = np.ascontiguousarray(rgb).copy()
     h, w = out.shape[:2]
     scale = max(h / 720.0, 0.3)

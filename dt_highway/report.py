@@ -443,6 +443,7 @@ def describe(x: np.ndarray, lo: float = -math.inf, hi: float = math.inf) -> dict
     :return: ``n``, ``mean``, ``sd``, ``ci95`` ``[low, high]`` (``None`` with fewer than 2 values)
         and ``ci95_clipped`` (a bound was clipped)
     """
+    x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]
     n = len(x)
     if not n:
@@ -604,7 +605,15 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
     """``summary.json``'s contents (but the provenance): per condition, the comparisons
     (``paired_tests``: the ``adas - baseline`` one's tests, when the study has both), the trials
     excluded (``excluded``: trial and reason), aborted and cut short, the metrics' labels and
-    units (``labels``), definitions and notes on the statistics."""
+    units (``labels``), definitions and notes on the statistics.
+
+    :param metrics: :func:`collect`'s metrics (one row per trial)
+    :param extra: :func:`collect`'s plot data
+    :raises ValueError: on other tables (a one-line note that says so)
+    """
+    if not isinstance(metrics, pd.DataFrame) or not {"condition", "status"} <= set(metrics.columns) \
+            or not isinstance(extra, dict) or "cut_ins" not in extra:
+        raise ValueError("summarise takes the metrics and data collect(study_dir) gives")
     done = _completed(metrics)
     conditions = {}
     for cond in condition_order(done["condition"].dropna().unique()):

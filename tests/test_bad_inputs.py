@@ -162,3 +162,37 @@ def test_the_python_calls_say_what_is_wrong_with_an_argument(call, words):
     with pytest.raises(ConfigError) as err:
         call()
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def _api_calls():
+    import numpy as np
+    import pandas as pd
+
+    from dt_highway import load_trial
+    from dt_highway.camera.pinhole import Intrinsics
+    from dt_highway.camera.render import depth_to_uint8
+    from dt_highway.drivers.scripted import HumanDriver
+    from dt_highway.overlay import ShamOverlay, draw_overlay
+    from dt_highway.report import summarise
+    frame = np.zeros((48, 64, 3), np.uint8)
+    return [
+        (lambda: load_trial(None), TypeError, "load_trial reads a trial's directory: a path (got NoneType)"),
+        (lambda: draw_overlay(frame, [{"vehicle_id": 1}]), ValueError, "overlay mark 0 has no 'box' [px]"),
+        (lambda: draw_overlay(frame.astype(float), []), ValueError, "uint8 (H, W, 3) RGB frame (got float64"),
+        (lambda: HumanDriver("h", {"reaction_time_s": 1.0}), TypeError, "HumanDriver takes HumanParams (got dict)"),
+        (lambda: summarise(pd.DataFrame(), {}), ValueError, "summarise takes the metrics and data collect(study_dir)"),
+        (lambda: ShamOverlay(np.random.default_rng(0), hold_s=-1), ConfigError, "overlay.hold_s = -1 is out of range"),
+        (lambda: ShamOverlay(0), TypeError, "numpy.random.Generator (got int)"),
+        (lambda: Intrinsics.from_fov(float("nan"), 48, 1.0), ValueError, "width_px must be a whole number of pixels"),
+        (lambda: Intrinsics(64, 48, -1.0, 1.0, 1.0, 1.0), ValueError, "fx_px must be a finite number > 0"),
+        (lambda: depth_to_uint8(np.ones((2, 2)), 0.0), ValueError, "max_range_m must be a finite number > 0 [m]"),
+    ]
+
+
+@pytest.mark.parametrize("k", range(10))
+def test_library_calls_refuse_what_they_cannot_use_in_one_line(k):
+    """Each was a KeyError, AttributeError, ZeroDivisionError, an all-NaN camera or a silent float64 frame."""
+    call, kind, words = _api_calls()[k]
+    with pytest.raises(kind) as err:
+        call()
+    assert words in str(err.value) and "\n" not in str(err.value)

@@ -101,3 +101,9 @@ def test_a_condition_no_trial_ran_in_is_one_line(tmp_path):
         with pytest.raises(ValueError, match=r"^no trial of condition '(ADAS|nope)' in these metrics \(conditions: "
                                              r"adas, baseline\)$"):
             call()
+
+
+def test_describe_takes_a_plain_list():
+    from dt_highway.report import describe
+    assert describe([1, 2, 3, float("nan")]) | {"ci95": None} == {"n": 3, "mean": 2.0, "sd": 1.0, "ci95": None,
+                                                                    "ci95_clipped": False}

@@ -23,6 +23,7 @@ Depth is **planar**: ``Z_c``, the distance along the optical axis (CARLA's conve
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,19 @@ class Intrinsics:
     cx_px: float
     cy_px: float
 
+    def __post_init__(self) -> None:
+        """Refuse a size that is not a whole number of pixels > 0, and focal lengths or a principal point that are
+        not finite (focal lengths > 0), in one line."""
+        for name in ("width_px", "height_px"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v <= 0:
+                raise ValueError(f"{name} must be a whole number of pixels > 0 (got {v!r})")
+        for name in ("fx_px", "fy_px", "cx_px", "cy_px"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) \
+                    or (name.startswith("f") and v <= 0):
+                raise ValueError(f"{name} must be a finite number{' > 0' if name.startswith('f') else ''} (got {v!r})")
+
     @classmethod
     def from_fov(
         cls, width_px: int, height_px: int, hfov_rad: float, cx_px: float | None = None, cy_px: float | None = None
@@ -57,8 +71,9 @@ class Intrinsics:
 
         :raises ValueError: on a non-positive size or a field of view outside (0, pi)
         """
-        if width_px <= 0 or height_px <= 0:
-            raise ValueError(f"image size must be positive (got {width_px}x{height_px})")
+        for name, v in (("width_px", width_px), ("height_px", height_px)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v <= 0:
+                raise ValueError(f"{name} must be a whole number of pixels > 0 (got {v!r})")
         if not 0.0 < hfov_rad < math.pi:
             raise ValueError(f"horizontal field of view must be in (0, pi) rad (got {hfov_rad})")
         f = width_px / (2.0 * math.tan(hfov_rad / 2.0))

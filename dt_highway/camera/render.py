@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import cv2
@@ -764,6 +765,9 @@ def depth_to_uint8(depth_m: np.ndarray, max_range_m: float) -> np.ndarray:
     :param depth_m: depth image [m]
     :param max_range_m: the range mapped to 0 [m]
     :return: ``uint8`` image of the same shape
+    :raises ValueError: on a range that is not a finite number > 0
     """
+    if not (isinstance(max_range_m, numbers.Real) and math.isfinite(max_range_m) and max_range_m > 0):
+        raise ValueError(f"max_range_m must be a finite number > 0 [m] (got {max_range_m!r})")
     scaled = 255.0 - np.asarray(depth_m, dtype=np.float32) * np.float32(255.0 / max_range_m)
     return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)

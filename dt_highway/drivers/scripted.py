@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -77,6 +77,16 @@ from dt_highway.agent_config import HumanParams, RandomParams
 from dt_highway.drivers.base import ACCEL_MAX_MPS2, ACCEL_MIN_MPS2, Driver
 from dt_highway.drivers.idm import IDMParams, idm_accel
 from dt_highway.drivers.perception import Perception, Seen, SenseRequest, Surroundings
+
+_P = TypeVar("_P")
+
+
+def _settings(value: object, kind: type[_P], driver: str) -> _P:
+    """A driver's parameters, of their type (a dict is refused: its mistakes would surface mid-trial)."""
+    if not isinstance(value, kind):
+        raise TypeError(f"{driver} takes {kind.__name__} (got {type(value).__name__}): {kind.__name__}(**values), "
+                        "or a driver file with make_driver / load_driver")
+    return value
 
 
 class IDMDriver(Driver):
@@ -90,7 +100,7 @@ class IDMDriver(Driver):
 
     def __init__(self, name: str, idm: IDMParams) -> None:
         super().__init__(name)
-        self.idm = idm
+        self.idm = _settings(idm, IDMParams, "IDMDriver")
 
     def params(self) -> dict[str, Any]:
         """The IDM parameters (for the trial log)."""
@@ -113,7 +123,7 @@ class RandomDriver(Driver):
 
     def __init__(self, name: str, params: RandomParams | None = None) -> None:
         super().__init__(name)
-        self.p = params if params is not None else RandomParams()
+        self.p = _settings(params, RandomParams, "RandomDriver") if params is not None else RandomParams()
         self.accel_min_mps2, self.accel_max_mps2 = self.p.accel_min_mps2, self.p.accel_max_mps2
         self.lane_change_prob = self.p.lane_change_prob
         self.rng = np.random.default_rng(0)
@@ -151,7 +161,7 @@ class HumanDriver(Driver):
 
     def __init__(self, name: str, params: HumanParams | None = None) -> None:
         super().__init__(name)
-        self.p = params if params is not None else HumanParams()
+        self.p = _settings(params, HumanParams, "HumanDriver") if params is not None else HumanParams()
         self.rng = np.random.default_rng(0)
         self._memory: deque[Surroundings] = deque()
         self._w = np.zeros(2)

@@ -5,7 +5,8 @@
   ``completed`` or ``aborted``). Written at the start and replaced atomically at the end.
 * ``steps.csv``: one row per simulation step, the state after it (the ego's state, leader gap,
   closing speed, TTC, 2-D TTC..., the driver's action or keys held, what the overlay showed;
-  a trial of ``T`` s at ``f`` Hz has ``T f`` rows, ``t = 1/f ... T``), appended and flushed
+  a trial of ``T`` s at ``f`` Hz has ``T f`` rows, ``t = 1/f ... T``, or one decision's steps more when
+  highway-env's float clock falls just short of ``T``: :func:`expected_rows`), appended and flushed
   as the trial runs: a process killed outright loses at most the rows since the last flush
   (:attr:`TrialWriter.flush_every_s` of simulated time, 1 s by default).
 * ``events.jsonl``: one JSON object per line (cut-ins with the vehicle's id and true type,
@@ -303,7 +304,10 @@ def load_trial(directory: str | Path) -> Trial:
     :return: steps (DataFrame), events and metadata
     :raises FileNotFoundError: if it holds no trial (no ``meta.json``)
     :raises TrialLogError: if its ``meta.json`` or ``steps.csv`` cannot be read
+    :raises TypeError: when ``directory`` is not a path
     """
+    if not isinstance(directory, (str, Path)):
+        raise TypeError(f"load_trial reads a trial's directory: a path (got {type(directory).__name__})")
     d = Path(directory)
     meta_path = d / META
     if not meta_path.exists():
