@@ -1179,7 +1179,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"dt-highway {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    p = sub.add_parser("run", help="headless episodes on the IDM autopilot, scoring the twin (the main job: study --quick)")
+    p = sub.add_parser("run", help="headless episodes on the IDM autopilot, scoring the twin (the main job is study --quick)")
     _add_config_args(p)
     p.add_argument("--episodes", type=_positive(int, "--episodes"), default=2, help="episodes (default 2)")
     p.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
@@ -1216,7 +1216,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--oracle-hide", type=_oracle_hide, default=frozenset(), metavar="LIST",
                    help="with --oracle: deny the oracle these parts of the state, comma-separated: "
                    f"{', '.join(HIDEABLE)} (each replaced by what the twin could assume): which of them the foresight "
-                   "comes from")
+                   f"comes from; with --oracle-from picture: {', '.join(PICTURE_HIDEABLE)}")
     p.add_argument("--oracle-from", choices=STARTS, default="state",
                    help="with --oracle: what its futures start from: the simulator's state (default) or the twin's "
                    "picture (the cloud's fixes and tags, simulated with the simulator's driver models: a twin with a "

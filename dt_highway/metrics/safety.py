@@ -5,7 +5,9 @@ Every definition, with its unit (the docs' "Safety metrics" page shows this text
 * **samples**: one after each simulation step, at ``t = dt, 2 dt, ..., T`` (the state the
   step produced); the state at reset (``t = 0``) primes the monitor (previous speed, lane, who
   is in the lane) and is not a sample. A trial of ``T`` s at ``f`` Hz has ``T f`` samples
-  (120 s at 15 Hz: 1800) and lasts ``duration_s = n dt``; a crash, which ends the episode,
+  (120 s at 15 Hz: 1800; one decision's steps more when highway-env's clock, a float sum, falls just
+  short of ``T``: a keyboard trial, 30 decisions a second, of 10 or 120 s has 301 or 3601) and lasts
+  ``duration_s = n dt``; a crash, which ends the episode,
   is always the last sample.
 * **footprint** of a vehicle: its rectangle (``LENGTH`` x ``WIDTH``, turned by its heading);
   its longitudinal and lateral **extents** are the half sizes of that rectangle's box along and
