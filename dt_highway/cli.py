@@ -882,7 +882,8 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- detector
 def _weights_arg(path: str | None) -> str | None:
     if path is not None and not Path(path).is_file():
-        raise ConfigError(f"weights file not found: {path}")
+        raise ConfigError(f"weights file not found: {path} (a .pt file from dt-highway detector train; "
+                          "without --weights: the shipped weights)")
     return path
 
 

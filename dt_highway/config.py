@@ -848,7 +848,8 @@ class DetectorConfig(_Section):
     @model_validator(mode="after")
     def _weights_file(self) -> DetectorConfig:
         if self.weights is not None and not Path(self.weights).is_file():
-            raise ValueError(f"weights file not found: {self.weights}")
+            raise ValueError(f"weights file not found: {self.weights} (a .pt file from dt-highway detector train; "
+                             "unset: the shipped weights)")
         return self
 
 

@@ -123,7 +123,8 @@ def test_bad_weights_on_the_command_line_are_one_line(tmp_path, capsys) -> None:
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "not a detector weights file" in err
     assert main(["detector", "eval", "--weights", str(tmp_path / "none.pt"), "--quiet"]) == 2
-    assert "weights file not found" in capsys.readouterr().err
+    assert "weights file not found: " + str(tmp_path / "none.pt") + " (a .pt file from dt-highway detector train" \
+        in capsys.readouterr().err
     assert main(["matching", "--out", str(tmp_path / "m"), "--detectors", "yolo", "--quiet"]) == 2
     assert "--detectors takes simulated and/or learned" in capsys.readouterr().err
 
