@@ -52,14 +52,13 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from dt_highway._version import __version__
 from dt_highway.conditions import CONDITIONS
 from dt_highway.config import ConfigError
-from dt_highway.hmi.questionnaire import read_results
 from dt_highway.jsonio import dump_json, finite_number
-from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S, marked_ids, warned_cut_ins
+from dt_highway.metrics.overlay_metrics import WARNING_HORIZON_S, WARNING_LEAD_S, marked_before, marked_ids, warned_cut_ins
+from dt_highway.metrics.questionnaires import read_results
 from dt_highway.metrics.safety import (
     CONFLICT_TTC_S,
     CUT_IN_WINDOW_S,
@@ -68,6 +67,8 @@ from dt_highway.metrics.safety import (
     TTC_STAR_S,
     collision_label,
 )
+from dt_highway.metrics.stats import MIN_PAIRS, check_conditions, completed_pairs, describe
+from dt_highway.metrics.stats import paired_tests as stats_paired_tests
 from dt_highway.metrics.trial_log import (
     FINISHED_STATUSES,
     META,
@@ -162,8 +163,6 @@ METRIC_INFO: dict[str, tuple[str, str, float, float]] = {
 }
 """Each reported metric: its label, its unit and the range its values can take (the
 confidence intervals are clipped to it), used by the tables and the plots"""
-MIN_PAIRS = 10
-"""Below this many pairs a comparison carries a small-sample warning"""
 NOTES = {
     "ci95": ("95 % confidence interval of the mean: Student t (mean +/- t(0.975, n-1) SD / sqrt n), clipped to "
              "the range the metric can take (>= 0; TTC, 2-D TTC and PET <= the "
@@ -301,15 +300,13 @@ def _plot_data(trial: Trial, extra: dict[str, Any]) -> None:
     v = s["speed_mps"].to_numpy(float) * MS_TO_KMH
     marks = marked_ids(s)
     warned = warned_cut_ins(t, marks, trial.cut_ins)
-    for c, warned_in_time in zip(trial.cut_ins, warned, strict=True):
+    in_time = marked_before(t, marks, trial.cut_ins)
+    for c, warned_in_time, marked_in_time in zip(trial.cut_ins, warned, in_time, strict=True):
         t0 = float(c["t_s"])
         grid = np.arange(-2.0, CUT_IN_WINDOW_S + 1e-9, 0.5)
         trace = np.interp(t0 + grid, t, v, left=np.nan, right=np.nan)
         extra["traces"].append({"condition": cond, "grid": grid, "speed_kmh": trace - np.interp(t0, t, v)})
-        # marked in time: on the overlay at some step of the window before the cut-in
-        vid = int(c["vehicle_id"])
-        marked_before = any(vid in marks[k] for k in np.flatnonzero((t >= t0 - CUT_IN_WINDOW_S) & (t <= t0)))
-        extra["cut_ins"].append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_before,
+        extra["cut_ins"].append({"condition": cond, "driver_type": c.get("driver_type"), "marked_in_time": marked_in_time,
                                  "near_miss": c.get("maneuver") == "dangerous", "warned": warned_in_time})
 
 
@@ -430,51 +427,6 @@ def provenance(study_dir: str | Path, metas: Sequence[dict[str, Any]]) -> dict[s
     }
 
 
-def describe(x: np.ndarray, lo: float = -math.inf, hi: float = math.inf) -> dict[str, Any]:
-    """n, mean, SD (N-1) and the 95 % confidence interval of the mean of the finite values of ``x``.
-
-    The interval is Student t's, ``mean +/- t(0.975, n-1) SD / sqrt(n)``, clipped to ``[lo, hi]``,
-    the range the metric can take (:data:`METRIC_INFO`): a variance's interval does not go
-    below 0, a share's not above 1.
-
-    :param x: one value per trial
-    :param lo: the smallest value the metric can take
-    :param hi: the largest value the metric can take
-    :return: ``n``, ``mean``, ``sd``, ``ci95`` ``[low, high]`` (``None`` with fewer than 2 values)
-        and ``ci95_clipped`` (a bound was clipped)
-    """
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    n = len(x)
-    if not n:
-        return {"n": 0, "mean": None, "sd": None, "ci95": [None, None], "ci95_clipped": False}
-    mean = float(x.mean())
-    sd = float(x.std(ddof=1)) if n > 1 else None
-    ci: list[float | None] = [None, None]
-    clipped = False
-    if n > 1 and sd is not None:
-        half = float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n))
-        low, high = mean - half, mean + half
-        clipped = low < lo or high > hi
-        ci = [max(low, lo), min(high, hi)]
-    return {"n": n, "mean": mean, "sd": sd, "ci95": ci, "ci95_clipped": clipped}
-
-
-def _completed(metrics: pd.DataFrame) -> pd.DataFrame:
-    """The completed trials not excluded, with their pair ``key``: participant and seed (the pair number
-    without a seed)."""
-    ok = metrics["status"].isin(FINISHED_STATUSES)
-    if "excluded" in metrics:
-        ok &= metrics["excluded"].fillna("").astype(str) == ""
-    done = metrics[ok].copy()
-    seed = done["seed"] if "seed" in done else pd.Series(np.nan, index=done.index)
-    pair = done["pair"] if "pair" in done else pd.Series(np.nan, index=done.index)
-    seed_key = ("seed " + seed.astype(str)).where(seed.notna(), "pair " + pair.astype(str))
-    participant = done["participant"].fillna("").astype(str) if "participant" in done else ""
-    done["key"] = participant + "/" + seed_key
-    return done
-
-
 def _cut_short(done: pd.DataFrame) -> pd.Series:
     return done["cut_short"].eq(True) if "cut_short" in done else pd.Series(False, index=done.index)
 
@@ -485,48 +437,10 @@ def _plain(x: Any) -> Any:
     return None if isinstance(x, float) and math.isnan(x) else x
 
 
-def _check_conditions(metrics: pd.DataFrame, *names: str) -> None:
-    """Refuse a condition no trial of ``metrics`` ran in (its trials may all be excluded: that is no mistake)."""
-    held = sorted({str(c) for c in metrics["condition"].dropna()}) if "condition" in metrics else []
-    for name in names:
-        if name not in held:
-            raise ValueError(f"no trial of condition {name!r} in these metrics (conditions: {', '.join(held) or 'none'})")
-
-
 def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
                  names: Sequence[str] = SUMMARY_METRICS) -> dict[str, Any]:
-    """Wilcoxon signed-rank and paired t-test of ``b - a`` per metric, with Cohen's ``d_z``.
-
-    Pairs: same seed (and participant, for keyboard trials).
-
-    :param metrics: one row per trial (:func:`collect`)
-    :param a: the reference condition
-    :param b: the condition tested against it
-    :param names: the columns tested (a column without pairs is left out)
-    :return: per metric: ``n_pairs``, ``mean_diff``, ``wilcoxon_p``, ``ttest_p``, ``effect_size_dz``
-    :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
-    """
-    _check_conditions(metrics, a, b)
-    done = _completed(metrics)
-    out: dict[str, Any] = {}
-    for m in names:
-        if m not in done:
-            continue
-        wide = done.pivot_table(index="key", columns="condition", values=m, aggfunc="first")
-        if a not in wide or b not in wide:
-            continue
-        pair = wide[[a, b]].replace([np.inf, -np.inf], np.nan).dropna()
-        diff = (pair[b] - pair[a]).to_numpy(float)
-        res: dict[str, Any] = {"n_pairs": len(diff), "mean_diff": float(diff.mean()) if len(diff) else None,
-                               "wilcoxon_p": None, "ttest_p": None, "effect_size_dz": None}
-        if len(diff) >= 2 and np.any(diff != 0):
-            res["wilcoxon_p"] = float(stats.wilcoxon(diff).pvalue)
-            sd = diff.std(ddof=1)
-            if sd > 0:
-                res["ttest_p"] = float(stats.ttest_rel(pair[b], pair[a]).pvalue)
-                res["effect_size_dz"] = float(diff.mean() / sd)
-        out[m] = res
-    return out
+    """:func:`dt_highway.metrics.stats.paired_tests` of the report's metrics (``names``: :data:`SUMMARY_METRICS`)."""
+    return stats_paired_tests(metrics, a, b, names)
 
 
 def compare(metrics: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
@@ -537,8 +451,8 @@ def compare(metrics: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
         ``cut_short_pairs`` (pair keys), ``tests``
     :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
     """
-    _check_conditions(metrics, a, b)
-    done = _completed(metrics)
+    check_conditions(metrics, a, b)
+    done = completed_pairs(metrics)
     sub = done[done["condition"].isin([a, b])]
     counts = sub.groupby("key")["condition"].nunique()
     keys = set(counts[counts == 2].index)
@@ -614,7 +528,7 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
     if not isinstance(metrics, pd.DataFrame) or not {"condition", "status"} <= set(metrics.columns) \
             or not isinstance(extra, dict) or "cut_ins" not in extra:
         raise ValueError("summarise takes the metrics and data collect(study_dir) gives")
-    done = _completed(metrics)
+    done = completed_pairs(metrics)
     conditions = {}
     for cond in condition_order(done["condition"].dropna().unique()):
         g = done[done["condition"].astype(str) == cond]
@@ -678,7 +592,7 @@ def _plots(metrics: pd.DataFrame, extra: dict[str, Any], conds: list[str]) -> di
     out["ttc"] = _png(fig)
 
     fig, ax = plt.subplots(figsize=(1.5 + 1.5 * max(len(conds), 2), 3.4))
-    done = _completed(metrics)
+    done = completed_pairs(metrics)
     wide = done.pivot_table(index="key", columns="condition", values="speed_variance_kmh2", aggfunc="first")
     shown = [c for c in conds if c in wide.columns]
     if len(shown) >= 2:
@@ -832,7 +746,7 @@ def questionnaire_summary(metrics: pd.DataFrame, questionnaires: dict[str, dict[
         (condition -> column -> :func:`describe`) and ``comparisons`` (``a``, ``b``, ``tests`` per
         column with pairs); ``None`` when no usable trial has a score
     """
-    done = _completed(metrics)
+    done = completed_pairs(metrics)
     cols = [c for c in questionnaires if c in done and done[c].notna().any()]
     if not cols:
         return None

@@ -1,4 +1,4 @@
-"""Mirrors: the ego camera's renderer looking back, flipped like a mirror (camera/mirror.py)."""
+"""Mirrors: the ego camera's renderer looking back, flipped like a mirror (hmi/mirror.py)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import dt_highway  # noqa: F401  (registers the env)
-from dt_highway.camera.mirror import (
+from dt_highway.hmi.mirror import (
     BEZEL,
     MIRRORS,
     MirrorSettings,

@@ -33,6 +33,7 @@ from dt_highway.drivers.policy import PolicyDriver
 from dt_highway.env.seat import DriverSeat
 from dt_highway.jsonio import dump_json, whole_number
 from dt_highway.metrics.safety import TTC_CAP_S, collision_label, cut_in_outcomes, trial_metrics
+from dt_highway.metrics.stats import MIN_PAIRS, describe, paired_tests
 
 
 def run_episode(driver: Driver, env: gym.Env, seed: int) -> dict[str, Any]:
@@ -302,13 +303,11 @@ def comparisons(rows: list[Row], aware: dict[str, bool], policy: dict[str, bool]
 
 def paired_by_seed(episodes: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
     """Paired tests of row ``b`` minus row ``a``, episodes paired by seed
-    (:func:`dt_highway.report.paired_tests`: Wilcoxon signed-rank, paired t, Cohen's d_z), and the collisions.
+    (:func:`dt_highway.metrics.stats.paired_tests`: Wilcoxon signed-rank, paired t, Cohen's d_z), and the collisions.
 
     :param episodes: one row per episode with ``row``, ``seed`` and :data:`COMPARE_METRICS`
     :return: ``a``, ``b``, ``tests`` per metric, ``collisions`` (``a``, ``b``, ``only_a``, ``only_b``, ``both``)
     """
-    from dt_highway.report import paired_tests  # lazy: jinja2 and matplotlib come with the report
-
     frame = episodes[episodes["row"].isin([a, b])].copy()
     frame["condition"] = frame["row"]
     frame["status"] = "completed"
@@ -323,10 +322,8 @@ def paired_by_seed(episodes: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
 
 
 def summarise_row(frame: pd.DataFrame) -> dict[str, Any]:
-    """One row's figures: per metric n, mean, SD and 95 % CI (:func:`dt_highway.report.describe`),
+    """One row's figures: per metric n, mean, SD and 95 % CI (:func:`dt_highway.metrics.stats.describe`),
     the collisions and their kinds, and the median over all its cut-ins of their minimum TTC."""
-    from dt_highway.report import describe  # lazy: jinja2 and matplotlib come with the report
-
     crashed = frame[frame["collision"].astype(bool)]
     kinds = Counter(str(k) or "unknown" for k in crashed["collision_label"])
     pooled = [v for vs in frame["cut_in_ttcs_s"] for v in vs]
@@ -414,9 +411,9 @@ def rl_compare(rows: list[Row], episodes: int, seed: int = COMPARE_SEED, scenari
                  for row in rows},
         "comparisons": comps,
         "definitions": {**COMPARE_DEFINITIONS,
-                        "ci95": "Student t interval of the mean over episodes (report.describe)",
+                        "ci95": "Student t interval of the mean over episodes (dt_highway.metrics.stats.describe)",
                         "tests": "b - a paired by seed: Wilcoxon signed-rank and paired t p-values, Cohen's d_z "
-                                 "(report.paired_tests); pairs with a NaN (no cut-in) are left out",
+                                 "(dt_highway.metrics.stats.paired_tests); pairs with a NaN (no cut-in) are left out",
                         "collisions": "episodes ending crashed in a, in b, only in a, only in b, in both"},
         "episodes_table": results,
     }
@@ -474,8 +471,6 @@ def markdown_table(result: dict[str, Any]) -> str:
                          + f" | {k['a']} / {k['b']} ({k['only_a']}, {k['only_b']}) |")
         lines += ["", ("Δ is b − a (negative conflicts and positive TTC favour b); cut-in TTC pairs need a cut-in "
                   "in both episodes of the seed.")]
-        from dt_highway.report import MIN_PAIRS  # lazy: jinja2 and matplotlib come with the report
-
         if result["episodes"] < MIN_PAIRS:
             lines.append(f"Small sample: {result['episodes']} pairs per comparison; below {MIN_PAIRS} the p-values "
                          f"and intervals say little.")

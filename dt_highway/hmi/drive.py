@@ -5,7 +5,7 @@ the synthetic camera as the main picture, in the overlay conditions the overlay'
 drawn on it (:func:`dt_highway.overlay.draw_overlay`, from the fusion's output only), a HUD
 (speed in km/h, lane, time left, a neutral label such as "Trial 2": never the condition's name),
 highway-env's top-down view as a mini-map (M toggles it) and, with ``mirrors``, the rear-view
-mirror image of :func:`dt_highway.camera.mirror.render_mirrors`. The
+mirror image of :func:`dt_highway.hmi.mirror.render_mirrors`. The
 simulation is locked to the wall clock at its configured frequency (trials default to
 :data:`TRIAL_SIMULATION_HZ`, one decision per simulation step); the window reads its events (the keys)
 at up to ``fps`` frames per second and draws the composed picture, scaled to the window (resizable,
@@ -54,7 +54,6 @@ import gymnasium as gym
 import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
-from dt_highway.camera.mirror import render_mirrors
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
@@ -70,6 +69,7 @@ from dt_highway.hmi.crash import (
 )
 from dt_highway.hmi.joystick import Calibration, CalibrationError, JoystickInput, calibration_screen, open_joystick
 from dt_highway.hmi.keys import KeyEvent, KeyScript, Pedals, Steering
+from dt_highway.hmi.mirror import render_mirrors
 from dt_highway.hmi.picture import MIRROR_FRACTION, Hud, compose_frame, hud_band_height
 from dt_highway.hmi.screens import (
     END_SCREEN_S,
@@ -170,7 +170,7 @@ class DriveOptions:
     :param size: the window and camera size ``(width, height)`` [px] (``None``: the configuration's camera size)
     :param fullscreen: fill the screen (the picture scaled, its aspect kept)
     :param simulation_hz: simulation frequency [Hz] (``None``: the scenario's); decisions follow it
-    :param mirrors: draw the rear-view mirror (needs :mod:`dt_highway.camera.mirror`; none without it)
+    :param mirrors: draw the rear-view mirror (needs :mod:`dt_highway.hmi.mirror`; none without it)
     :param sound: beep on a crash when a sound device is there
     :param wheel: drive with this joystick or wheel (its index among those connected; ``None``: the keyboard):
         its pedals give the acceleration, its wheel the lane changes (or the steering with ``steering``),

@@ -1,4 +1,5 @@
-"""Mirrors: a rear-view mirror and two side mirrors, drawn by the ego camera's own renderer.
+"""The driving window's mirrors: a rear-view mirror and two side mirrors, drawn by the ego camera's
+own renderer (for the person at the wheel and the replay; no driver policy sees them).
 
 Each mirror is a :class:`~dt_highway.camera.render.CameraRenderer` looking back from the ego
 (the optical axis turned by ``pi``), its picture flipped left-right as a mirror shows it: a car

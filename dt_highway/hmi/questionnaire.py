@@ -51,11 +51,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from dt_highway.config import ConfigError, read_user_file
 from dt_highway.hmi.briefing import TextFont
 from dt_highway.jsonio import dump_json, finite_number
+from dt_highway.metrics.questionnaires import RESULTS_FILE, read_results
 
 QUESTIONNAIRE_DIR = Path(__file__).with_name("questionnaires")
 """Where the shipped questionnaire definitions are (``<name>.toml``)"""
-RESULTS_FILE = "questionnaires.json"
-"""The file a trial's answers go to, in the trial's directory"""
 FORMAT_VERSION = 1
 """Version of the layout of :data:`RESULTS_FILE`"""
 
@@ -746,17 +745,6 @@ def run_questionnaires(window_size: tuple[int, int], names: list[str], trial_dir
             pygame.display.quit()
         elif pygame.display.get_init():
             pygame.key.set_repeat(*repeat)
-
-
-def read_results(trial_dir: str | Path) -> dict[str, Any] | None:
-    """A trial's questionnaire results (:data:`RESULTS_FILE`), or ``None`` when it has none or it
-    cannot be read."""
-    p = Path(trial_dir) / RESULTS_FILE
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
 
 
 __all__ = ["FORMAT_VERSION", "QUESTIONNAIRE_DIR", "RESULTS_FILE", "Form", "Item", "Layout", "Questionnaire", "Scale",

@@ -38,11 +38,11 @@ import gymnasium as gym
 import numpy as np
 import pygame
 
-from dt_highway.camera.mirror import render_mirrors
 from dt_highway.conditions import display_name
 from dt_highway.config import ConfigError
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.drive import MIRROR_FRACTION, Hud, compose_frame, crash_layer, hud_band_height, place_ego_after_crash
+from dt_highway.hmi.mirror import render_mirrors
 from dt_highway.jsonio import finite_number, positive_number
 
 NEEDED_COLUMNS = ("t_s", "x_m", "y_m", "action_accel_mps2", "action_lane", "keys")

@@ -19,6 +19,10 @@ Definitions (``H`` = ``horizon_s``, 3 s by default, the horizon a warning is mea
   else its ``t_s``, which is that moment in :mod:`dt_highway.metrics.safety`), ``lead_s``
   1.5 s: warned at least 1.5 s before (NaN share without cut-ins). A mark whose onset was more
   than ``H + 1 s`` before a cut-in of its vehicle is a false warning and may still warn it.
+* **marked in time** (the report's first overlay table, :func:`marked_before`): cut-ins whose
+  vehicle was marked at some sample within ``[t_0 - W, t_0]``, ``t_0`` the cut-in event's ``t_s``
+  (its start) and ``W`` the window after a cut-in the report studies (10 s): any mark of that
+  car in the time before it, however late.
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from dt_highway.metrics.safety import CUT_IN_WINDOW_S
 
 WARNING_HORIZON_S = 3.0
 """H: a mark warns of a cut-in within ``H + 1 s`` [s]"""
@@ -85,6 +91,23 @@ def warned_cut_ins(t_s: np.ndarray, marks: Sequence[frozenset[int]], cut_ins: Se
         tc, vid = _cut_in_time_s(ev), int(ev["vehicle_id"])
         before = np.flatnonzero((t_s >= tc - horizon_s - 1.0 - 1e-9) & (t_s <= tc - lead_s + 1e-9))
         out.append(any(vid in marks[int(k)] for k in before))
+    return out
+
+
+def marked_before(t_s: np.ndarray, marks: Sequence[frozenset[int]], cut_ins: Sequence[dict[str, Any]],
+                  window_s: float = CUT_IN_WINDOW_S) -> list[bool]:
+    """Whether each cut-in's vehicle was marked at some sample within ``[t_0 - window_s, t_0]`` (module docstring).
+
+    :param t_s: sample times [s]
+    :param marks: the marked ids per sample (:func:`marked_ids`)
+    :param cut_ins: the cut-in events (``t_s``, ``vehicle_id``)
+    :param window_s: how long before the cut-in's start a mark counts [s]
+    :return: one flag per cut-in
+    """
+    out = []
+    for ev in cut_ins:
+        t0, vid = float(ev["t_s"]), int(ev["vehicle_id"])
+        out.append(any(vid in marks[int(k)] for k in np.flatnonzero((t_s >= t0 - window_s) & (t_s <= t0))))
     return out
 
 
