@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 import dt_highway  # noqa: F401  (registers the env)
+from dt_highway.camera.pinhole import Mount
+from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.mirror import (
     BEZEL,
     MIRRORS,
@@ -16,8 +18,6 @@ from dt_highway.hmi.mirror import (
     mirrors_for,
     render_mirrors,
 )
-from dt_highway.camera.pinhole import Mount
-from dt_highway.env.core import DTHighwayEnv
 
 SIZE = (800, 140)
 
