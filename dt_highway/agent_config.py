@@ -41,6 +41,9 @@ DEFAULT_SPEEDS_MPS = (18.0, 23.0, 27.0, 31.0)
 
 
 # ----------------------------------------------------------------------------- numbers of driver files
+# Small validators rather than pydantic's strict types: the same one-line wording as the rest of the
+# configuration ("must be a finite number >= 0"), numpy numbers taken (strict int refuses np.int64), and true/false
+# refused as a number, which lax pydantic would read as 1/0.
 def _non_negative(value: Any) -> float:
     number = finite_number(value)
     if number is None or number < 0:
