@@ -27,6 +27,7 @@ import math
 import tomllib
 import types
 import typing
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args
@@ -850,6 +851,9 @@ class DetectorConfig(_Section):
         if self.weights is not None and not Path(self.weights).is_file():
             raise ValueError(f"weights file not found: {self.weights} (a .pt file from dt-highway detector train; "
                              "unset: the shipped weights)")
+        if self.weights is not None and not zipfile.is_zipfile(self.weights):  # the rest is checked when it loads
+            raise ValueError(f"{self.weights} is not a detector weights file: not a torch zip archive (truncated, or "
+                             "another format; a .pt file from dt-highway detector train)")
         return self
 
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from dt_highway.cli import main
+from dt_highway.config import ConfigError, load_config
 from dt_highway.evaluation.detector import evaluate
 from dt_highway.perception.detect import iou
 from dt_highway.perception.learned import SHIPPED, Architecture, LearnedDetector, PointDetector, load_weights, save_weights
@@ -247,3 +248,12 @@ def test_training_and_config_mistakes_are_one_line(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):  # argparse's own one-line error
         main(["detector", "eval", "--min-score", "0", "--quiet"])
     assert "--min-score must be in (0, 1]" in capsys.readouterr().err
+
+
+def test_a_weights_file_that_is_no_torch_archive_is_refused_with_the_configuration(tmp_path) -> None:
+    """Before any trial: a study ran its baseline trials and failed each ADAS trial on it."""
+    bad = tmp_path / "bad.pt"
+    bad.write_text("garbage")
+    with pytest.raises(ConfigError, match=r"bad.pt is not a detector weights file: not a torch zip archive") as err:
+        load_config(None, ["detector.kind=learned", f"detector.weights={bad}"])
+    assert "\n" not in str(err.value)
