@@ -23,7 +23,11 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from highway_env.road.lane import StraightLane
+
 from dt_highway.config import ConfigError, DTConfig, check_overrides, deep_merge, load_config, override_value
+from dt_highway.twin.cloud import check_models
+from dt_highway.twin.tagger import HighwayMap
 
 CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
 """Every condition a study or a keyboard session can run"""
@@ -93,10 +97,12 @@ def driver_config(scenario: str | None, overrides: Sequence[str], condition: str
     :param overrides: ``dotted.key=value`` strings (``--set``)
     :param condition: one of :data:`CONDITIONS`
     :param driver_overrides: what the driver adds to the configuration
-    :raises ConfigError: one line, on a bad scenario, condition or override
+    :raises ConfigError: one line, on a bad scenario, condition or override, or a twin model file that cannot be
+        read (:func:`~dt_highway.twin.cloud.check_models`)
     """
     cfg = load_config(scenario, check_overrides(overrides), deep_merge(condition_config(condition), dict(driver_overrides)))
     check_driver_action(cfg)
+    check_models(cfg.twin, HighwayMap(StraightLane.DEFAULT_WIDTH, cfg.highway.lanes_count))
     return cfg
 
 

@@ -196,3 +196,17 @@ def test_library_calls_refuse_what_they_cannot_use_in_one_line(k):
     with pytest.raises(kind) as err:
         call()
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("settings", [["twin.intention.weights={bad}.npz"],
+                                      ["twin.tagger.model=evidence", "twin.tagger.evidence_weights={bad}.json"]])
+def test_a_twin_model_file_that_cannot_be_read_stops_a_study_before_its_first_trial(tmp_path, capsys, settings):
+    """Each trial failed on it, one after the other, and the study wrote a report of none."""
+    bad = tmp_path / "bad"
+    for ext in (".npz", ".json"):
+        (tmp_path / f"bad{ext}").write_text("{}" if ext == ".json" else "garbage")
+    args = [a for s in settings for a in ("--set", s.format(bad=bad))]
+    code = main(["study", "--quick", "--out", str(tmp_path / "s"), "--quiet", *args])
+    line = one_line(capsys, code, "twin.")
+    assert ("cannot read intention weights" in line) or ("has no 'features'" in line)
+    assert not (tmp_path / "s").exists()

@@ -261,6 +261,25 @@ class Downlink:
         return self.latest
 
 
+def check_models(config: TwinConfig, road: HighwayMap) -> None:
+    """Load the twin's models as a :class:`CloudTwin` does (the tagger's evidence weights, the intention
+    model and its weights), without its store: a bad file is one line before any episode, not a failure
+    of each.
+
+    :param config: the twin's configuration (nothing to check when it is off)
+    :param road: the map
+    :raises ConfigError: one line, on a file that cannot be read or a model that cannot be made
+    """
+    if not config.enabled:
+        return
+    Tagger(config.tagger, road)
+    if config.intention.enabled:
+        try:
+            IntentionEstimator(config.intention, road, config.tagger.prior_aggressive)
+        except ValueError as exc:
+            raise ConfigError(f"twin.intention: {exc}") from None
+
+
 # ----------------------------------------------------------------------------- SQLite persistence
 def lock_store(path: str | Path) -> IO[bytes]:
     """Open (or create) a store file and hold it for one twin: a second twin on the same file, in this process or
