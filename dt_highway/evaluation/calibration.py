@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from dt_highway.conditions import check_driver_action, condition_config
-from dt_highway.config import ConfigError, load_config, override_value
+from dt_highway.conditions import driver_config
+from dt_highway.config import ConfigError, override_value
 from dt_highway.metrics.safety import TTC_CAP_S, cut_in_outcomes
 from dt_highway.metrics.trial_log import Trial, load_trial
 from dt_highway.study import plan, run_study
@@ -148,8 +148,8 @@ def check_values(knob: str, values: Sequence[str], scenario: str | None, overrid
         if override_value(text, knob) is not None:
             raise ConfigError(f"--set {text.strip()} sets the key --knob varies ({knob}): drop it, or give the value "
                               "in --knob")
-    for v in values:
-        check_driver_action(load_config(scenario, [*overrides, f"{knob}={v}"], condition_config("baseline")))
+    for v in values:  # as driver_config checks each trial's: the ego's action, the twin's model files
+        driver_config(scenario, [*overrides, f"{knob}={v}"], "baseline", {})
 
 
 def calibrate(
