@@ -1,5 +1,6 @@
 """The dt-highway-v0 env: registration, API checks, determinism, ids, info, memory."""
 
+import copy
 import gc
 import json
 import os
@@ -7,6 +8,7 @@ import shutil
 import sqlite3
 import subprocess
 import sys
+import time
 from contextlib import closing
 from pathlib import Path
 
@@ -698,3 +700,43 @@ def test_a_script_that_never_closes_its_env_keeps_what_the_twin_learnt(tmp_path)
     env.close()
     with pytest.raises(ConfigError, match="must name a SQLite file in an existing folder"):
         DTHighwayEnv(config={"twin": {"store": {"path": str(tmp_path / "no-such-folder" / "twin.sqlite")}}})
+
+
+def _store_config(path):
+    return {"highway": {"duration": 3, "vehicles_count": 8}, "twin": {"preroll_s": 0.0, "store": {"path": str(path)}},
+            "traffic": {"population_seed": 1}}
+
+
+def test_a_store_file_goes_with_an_env_that_is_dropped_copied_closed_or_forked(tmp_path):
+    """An env dropped without close() held its file until the cycle collector ran (a notebook cell run twice
+    failed); a copy of the env could not be made; a forked child kept the file from the next env; after a close
+    the next reset takes the file again and keeps the same drivers and twin."""
+    cfg = _store_config(tmp_path / "twin.sqlite")
+
+    def episode():
+        env = gym.make(ENV_ID, config=cfg)
+        env.reset()
+        env.step(0)
+
+    episode()
+    episode()  # the first one's env is garbage, not yet collected
+    env = gym.make(ENV_ID, config=cfg)
+    env.reset(seed=0)
+    twin, population = env.unwrapped.twin, env.unwrapped.population
+    copied = copy.deepcopy(env.unwrapped)  # holds no file: writes nothing, releases nothing
+    assert copied.twin._lock is None and twin._lock is not None
+    copied.close()
+    assert twin._lock is not None
+    pid = os.fork()
+    if pid == 0:  # the child only sleeps a little: the parent's env must get the file back at once
+        time.sleep(2.0)
+        os._exit(0)
+    try:
+        env.close()
+        env.reset()  # unseeded: the same world, the file taken again
+        assert env.unwrapped.twin is twin and env.unwrapped.population is population and twin._lock is not None
+        env.close()
+        other = DTHighwayEnv(config=cfg)  # while the child lives
+        other.close()
+    finally:
+        os.waitpid(pid, 0)

@@ -478,6 +478,9 @@ class DTHighwayEnv(HighwayEnv):
         if key == self._built_for:
             if self.twin is not None:
                 self.twin.config = twin  # links, radius, pre-roll: no need to forget the drivers
+                if twin.store.path and self._twin_closer is None:  # after a close: take the file again
+                    self.twin.reopen()
+                    self._twin_closer = weakref.finalize(self, self.twin.close)
             return
         self._close_twin()
         tcfg = self.dt_config.traffic
@@ -499,12 +502,11 @@ class DTHighwayEnv(HighwayEnv):
         self._built_for = key
 
     def _close_twin(self) -> None:
-        """Close the twin (once): it writes its store file, when one is configured (a reset after this one
-        makes the twin again, from that file)."""
+        """Close the twin (once): it writes its store file, when one is configured, and lets it go (a reset after
+        this one takes it again and reads it)."""
         if self._twin_closer is not None:
             self._twin_closer()
             self._twin_closer = None
-            self._built_for = None
         elif self.twin is not None:
             self.twin.close()
 

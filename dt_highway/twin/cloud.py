@@ -7,14 +7,18 @@ outlive an episode when ``store.persist_across_episodes`` is on.
 
 from __future__ import annotations
 
+import gc
 import heapq
 import itertools
 import json
 import math
+import os
 import sqlite3
+import warnings
+import weakref
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 try:
     import fcntl
@@ -114,13 +118,30 @@ class CloudTwin:
         self._next_intent_s = -math.inf
         self._intention_estimator()
         self._lock: IO[bytes] | None = None
-        if config.store.path:
-            self._lock = lock_store(config.store.path)
-            try:
-                load_records(config.store.path, self)
-            except ConfigError:
-                self._unlock()
-                raise
+        self.reopen()
+
+    def reopen(self) -> None:
+        """Take the store file (``store.path``) for this twin and read what it holds (at the start, and after a
+        :meth:`close`: another twin may have written it since). Nothing to do without a file, or while it holds it.
+
+        :raises ConfigError: one line, when the file cannot be opened, read or locked (another env holds it)
+        """
+        path = self.config.store.path
+        if not path or self._lock is not None:
+            return
+        self._lock = lock_store(path)
+        _HELD.add(self)
+        try:
+            load_records(path, self)
+        except ConfigError:
+            self._unlock()
+            raise
+
+    def __getstate__(self) -> dict[str, Any]:
+        """A copy (``copy.deepcopy``, a pickle) holds no store file: it neither writes nor releases it."""
+        state = self.__dict__.copy()
+        state["_lock"] = None
+        return state
 
     def _intention_estimator(self) -> IntentionEstimator | None:
         """The estimator of the configured ``twin.intention`` (remade when that section changes)."""
@@ -217,6 +238,25 @@ class CloudTwin:
         if self._lock is not None:
             self._lock.close()  # the lock goes with the file's descriptor
             self._lock = None
+        _HELD.discard(self)
+
+
+_HELD: weakref.WeakSet[CloudTwin] = weakref.WeakSet()
+"""The twins that hold their store file (in this process)"""
+
+
+def _forget_files_in_child() -> None:
+    """In a forked child: close the store files the parent's twins hold (the child shares them, and while it
+    held them the parent could not let another env have them); the child's copies write nothing."""
+    for twin in list(_HELD):
+        if twin._lock is not None:
+            twin._lock.close()
+            twin._lock = None
+    _HELD.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_files_in_child)
 
 
 class Downlink:
@@ -285,22 +325,31 @@ def lock_store(path: str | Path) -> IO[bytes]:
     """Open (or create) a store file and hold it for one twin: a second twin on the same file, in this process or
     another, would replace what the first writes at its close.
 
-    :return: the open file, whose closing releases it
+    :return: the open file, whose closing releases it (on a file system without locks, unlocked, with a warning;
+        without ``fcntl``, not POSIX, unlocked)
     :raises ConfigError: one line, when the file cannot be opened or another twin holds it
     """
     try:
         fh = open(path, "a+b")  # held until the twin closes
     except OSError as exc:
         raise ConfigError(f"twin.store.path '{path}' cannot be opened: {exc.strerror or exc}") from None
-    if fcntl is not None:
+    if fcntl is None:
+        return fh
+    for attempt in range(2):
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            fh.close()
-            raise ConfigError(f"twin.store.path '{path}' is in use by another env (in this process or another): "
-                              "give each env its own file (the last to close would replace what the others "
-                              "wrote)") from None
-    return fh
+            return fh
+        except BlockingIOError:
+            if attempt == 0:  # an env dropped without close() holds it until the cycle collector frees it (and
+                gc.collect()  # its finalizer writes and releases the file): free it now
+        except OSError as exc:  # a file system without locks (some network mounts)
+            warnings.warn(f"twin.store.path '{path}' cannot be locked ({exc.strerror or exc}): a second env on it "
+                          "would not be refused", stacklevel=3)
+            return fh
+    fh.close()
+    raise ConfigError(f"twin.store.path '{path}' is in use by another env (in this process or another): close that "
+                      "env first (env.close()), or give each env its own file (the last to close would replace what "
+                      "the others wrote)")
 
 
 def save_records(path: str | Path, twin: CloudTwin) -> None:
