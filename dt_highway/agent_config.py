@@ -26,7 +26,16 @@ from typing import Annotated, Any, Literal, get_args
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from dt_highway.conditions import condition_config
-from dt_highway.config import ConfigError, DTConfig, FrozenSettings, config_error, find_file, load_config, read_toml
+from dt_highway.config import (
+    ConfigError,
+    DTConfig,
+    FrozenSettings,
+    TypedValues,
+    config_error,
+    find_file,
+    load_config,
+    read_toml,
+)
 from dt_highway.jsonio import finite_number, whole_number
 
 # ----------------------------------------------------------------------------- the Driver action's limits
@@ -212,7 +221,7 @@ def parse_driver_file(tree: dict[str, Any]) -> HumanDriverFile | IDMDriverFile |
 
 
 # ----------------------------------------------------------------------------- reward terms of training files
-class CollisionCost(BaseModel):
+class CollisionCost(TypedValues):
     """Cost of a collision of the ego, by its kind (:data:`~dt_highway.metrics.safety.COLLISION_KINDS`,
     as the trial logs classify it) [-, per collision].
 
@@ -230,7 +239,7 @@ class CollisionCost(BaseModel):
     unknown: float = Field(0.0, ge=0, description="cost of a collision of unknown kind [-]")
 
 
-class TTCCost(BaseModel):
+class TTCCost(TypedValues):
     """Exposure to a small 2-D time to collision (Jiao 2023, as the trial logs' ``ttc2d_s``), after
     Minderhoud & Bovy's (2001) TET/TIT with threshold ``TTC*``.
 
@@ -247,7 +256,7 @@ class TTCCost(BaseModel):
     mode: Literal["tet", "tit"] = Field("tet", description="tet: time exposed; tit: time-integrated TTC deficit")
 
 
-class BrakingCost(BaseModel):
+class BrakingCost(TypedValues):
     """Hard braking: ``sum dt max(0, -a - threshold)`` over the simulation steps, the speed shed
     beyond the threshold deceleration [m/s].
 
@@ -261,7 +270,7 @@ class BrakingCost(BaseModel):
     threshold_mps2: float = Field(3.0, ge=0, le=10, description="deceleration from which braking costs [m/s^2]")
 
 
-class ProgressReward(BaseModel):
+class ProgressReward(TypedValues):
     """Progress: ``distance``, the metres the ego travelled along the road [m]; or ``speed``,
     ``sum dt max(0, 1 - |v - v*| / v*)``, time near the target speed ``v*`` [s].
 
@@ -277,7 +286,7 @@ class ProgressReward(BaseModel):
     target_mps: float = Field(27.0, gt=0, le=45, description="speed: the target speed v* [m/s]")
 
 
-class JerkCost(BaseModel):
+class JerkCost(TypedValues):
     """Comfort: longitudinal jerk, ``sum dt |j|`` = ``sum |a_k - a_(k-1)|`` over the simulation steps,
     the total variation of the acceleration [m/s^2].
 
@@ -289,7 +298,7 @@ class JerkCost(BaseModel):
     weight: float = Field(0.0, ge=0, description="cost per m/s^2 of acceleration change [s^2/m]")
 
 
-class RewardConfig(BaseModel):
+class RewardConfig(TypedValues):
     """The training reward (``[reward]`` of a training file; :mod:`dt_highway.rl.rewards` computes it).
 
     ``reward = highway * r_highway + progress - collision - ttc2d - hard_braking - jerk`` per
@@ -385,7 +394,7 @@ GradientNorm = Annotated[float, _number(0.0, low_open=True, infinite=True)]
 """A number > 0; ``inf`` clips nothing"""
 
 
-class PPOHyperparameters(BaseModel):
+class PPOHyperparameters(TypedValues):
     """PPO's hyperparameters with their allowed ranges and stable-baselines3's defaults (``[hyperparameters]``
     of a training file), checked before any env is built: stable-baselines3 takes most of them as given
     (``gamma = 2`` or ``clip_range = -0.2`` would train, ``gamma = "0.9"`` fail after the first rollout).
@@ -415,7 +424,7 @@ class PPOHyperparameters(BaseModel):
         return self
 
 
-class DQNHyperparameters(BaseModel):
+class DQNHyperparameters(TypedValues):
     """DQN's hyperparameters with their allowed ranges and stable-baselines3's defaults (see
     :class:`PPOHyperparameters`)."""
 
@@ -485,7 +494,7 @@ VISION_CAMERA = {"width_px": 128, "height_px": 72}
 """Camera size of the vision setting unless the scenario or ``set`` says otherwise [px]"""
 
 
-class TrainConfig(BaseModel):
+class TrainConfig(TypedValues):
     """What ``dt-highway train`` trains: an RL training file (``agents/<name>.toml``, ``kind = "rl"``).
 
     A training file names the algorithm, the observation setting and the scenario; everything

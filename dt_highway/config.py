@@ -55,43 +55,78 @@ class ConfigError(ValueError):
     """A configuration mistake, described in one line (dotted key and what is allowed)."""
 
 
-def _number_field(annotation: Any) -> bool:
-    """Whether a field holds a number (``int``, ``float``, or either or ``None``)."""
-    args = [a for a in typing.get_args(annotation) if a is not type(None)]
-    return annotation in (int, float) or (bool(args) and all(a in (int, float) for a in args)
-                                           and typing.get_origin(annotation) in (typing.Union, types.UnionType))
+def _plain(annotation: Any) -> tuple[Any, ...]:
+    """The types a field may hold: its union's members but ``None`` (the annotation itself when it is no union)."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return tuple(a for a in typing.get_args(annotation) if a is not type(None))
+    return (annotation,)
 
 
-class _Section(BaseModel):
+def _kind(value: Any) -> str:
+    return "text" if isinstance(value, str) else "true/false"
+
+
+def check_scalar(annotation: Any, value: Any) -> None:
+    """Refuse true/false or text where a number goes (also as a list's or tuple's item), and anything but
+    true/false where a switch goes: pydantic's lax reading would take ``true`` as 1, ``"3"`` as 3 and ``"off"``
+    as false. ``None`` and numpy's numbers and booleans pass.
+
+    :param annotation: the field's type
+    :param value: the value given
+    :raises PydanticCustomError: naming what the key takes
+    """
+    types_ = _plain(annotation)
+    if value is None or not types_:
+        return
+    if all(t in (int, float) for t in types_):
+        if isinstance(value, (bool, np.bool_, str)):
+            raise PydanticCustomError("not_a_number", "must be {number}, not {kind}",
+                                      {"number": "a whole number" if float not in types_ else "a number",
+                                       "kind": _kind(value)})
+    elif types_ == (bool,):
+        if not isinstance(value, (bool, np.bool_)):
+            raise PydanticCustomError("not_a_switch", "must be true or false", {})
+    elif len(types_) == 1 and typing.get_origin(types_[0]) in (list, tuple) and isinstance(value, (list, tuple)):
+        items = {a for a in typing.get_args(types_[0]) if a is not Ellipsis}
+        bad = next((v for v in value if isinstance(v, (bool, np.bool_, str))), None)
+        if items and items <= {int, float} and bad is not None:
+            raise PydanticCustomError("not_numbers", "must be a list of numbers, without {kind}", {"kind": _kind(bad)})
+
+
+class TypedValues(BaseModel):
+    """Base of the models read from files and ``--set``: a number key refuses true/false and text, and a
+    switch anything but true/false (:func:`check_scalar`). pydantic would read ``true`` as 1, ``"3"`` as 3 and
+    ``"off"`` as false, so ``lanes_count = true`` made one lane; TOML and ``--set`` give numbers and switches
+    their own types."""
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _a_number_is_a_number(cls, value: Any, info: ValidationInfo) -> Any:
+        if info.field_name is not None:
+            check_scalar(cls.model_fields[info.field_name].annotation, value)
+        return value
+
+
+class _Section(TypedValues):
     """Base of every config section: unknown keys are errors, and a configuration cannot change once
     validated (a change goes through :func:`merge`, which checks the rules across sections too)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    @field_validator("*", mode="before")
-    @classmethod
-    def _a_number_is_a_number(cls, value: Any, info: ValidationInfo) -> Any:
-        """A number key refuses true/false and text, and a switch anything but true/false: pydantic would read
-        ``true`` as 1, ``"3"`` as 3 and ``"off"`` as false, so ``lanes_count = true`` made one lane (TOML and
-        ``--set`` give numbers and switches their own types)."""
-        if info.field_name is None:
-            return value
-        annotation = cls.model_fields[info.field_name].annotation
-        if isinstance(value, (bool, np.bool_, str)) and _number_field(annotation):
-            whole = int in (annotation, *typing.get_args(annotation)) and float not in typing.get_args(annotation)
-            raise PydanticCustomError("not_a_number", "must be {number}, not {kind}",
-                                      {"number": "a whole number" if whole else "a number",
-                                       "kind": "text" if isinstance(value, str) else "true/false"})
-        if annotation is bool and not isinstance(value, (bool, np.bool_)):
-            raise PydanticCustomError("not_a_switch", "must be true or false", {})
-        return value
-
     def __setattr__(self, name: str, value: Any) -> None:
         """Refused, in one line: a section set on its own would skip the rules across sections (fusion
         needs the camera...) and the env would not see it."""
-        raise ConfigError(f"the configuration cannot be changed in place ({type(self).__name__}.{name} = {value!r}): "
-                          "pass the change to env.unwrapped.configure({'section': {'key': value}}) (applied at the "
-                          "next reset), gym.make(..., config=...) or dt_highway.config.merge")
+        shown = " ".join(repr(value).split())
+        raise ConfigError(f"the configuration cannot be changed in place ({type(self).__name__}.{name} = "
+                          f"{shown if len(shown) <= 60 else shown[:57] + '...'}): pass the change to "
+                          "env.unwrapped.configure({'section': {'key': value}}) (applied at the next reset), "
+                          "gym.make(..., config=...) or dt_highway.config.merge")
+
+    def __delattr__(self, name: str) -> None:
+        """Refused, as :meth:`__setattr__`."""
+        raise ConfigError(f"the configuration cannot be changed in place (del {type(self).__name__}.{name}): pass "
+                          "the change to env.unwrapped.configure({...}), gym.make(..., config=...) or "
+                          "dt_highway.config.merge")
 
 
 class FrozenSettings(BaseModel):
@@ -624,7 +659,8 @@ class StoreConfig(_Section):
     path: str | None = Field(
         None,
         description="SQLite file that keeps the drivers' evidence across processes "
-        "(set traffic.population_seed too, so that the ids mean the same drivers)",
+        "(set traffic.population_seed too, so that the ids mean the same drivers); written at env.close(), at a "
+        "seeded reset and when Python exits; one env at a time (on POSIX systems a second is refused)",
     )
 
     @field_validator("path")

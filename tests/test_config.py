@@ -399,6 +399,10 @@ def test_gym_make_takes_the_configuration_load_config_gives():
     ({"traffic": {"population_seed": False}}, "traffic.population_seed = False: must be a whole number"),
     ({"overlay": {"sham": "yes"}}, "overlay.sham = 'yes': must be true or false"),
     ({"ego": {"autopilot": 1}}, "ego.autopilot = 1: must be true or false"),
+    ({"highway": {"reward_speed_range": [True, 30]}},
+     "reward_speed_range = [True, 30]: must be a list of numbers, without true/false"),
+    ({"twin": {"intention": {"horizons_s": ["1", 2.0]}}}, "must be a list of numbers, without text"),
+    ({"highway": {"offscreen_rendering": "off"}}, "highway.offscreen_rendering = 'off': must be true or false"),
 ])
 def test_numbers_and_switches_are_not_read_from_other_types(tree, words):
     """pydantic's lax reading made lanes_count = true one lane, "off" false and "3" 3."""
@@ -411,3 +415,25 @@ def test_numbers_and_switches_of_numpy_and_python_types_are_taken():
     cfg = validate({"highway": {"lanes_count": np.int64(3), "duration": 4}, "ego": {"autopilot": np.True_},
                     "traffic": {"population_seed": None}})
     assert cfg.highway.lanes_count == 3 and cfg.highway.duration == 4.0 and cfg.ego.autopilot is True
+
+
+def test_a_training_file_takes_numbers_as_numbers():
+    import tomllib
+
+    from dt_highway.agent_config import parse_train_config
+    tree = tomllib.loads((CHECKOUT / "agents" / "ppo-adas.toml").read_text())
+    for key, value, words in [("timesteps", True, "timesteps = True: must be a whole number, not true/false"),
+                              ("n_envs", "3", "n_envs = '3': must be a whole number, not text")]:
+        with pytest.raises(ConfigError, match=re.escape(words)):
+            parse_train_config({**tree, key: value}, "x.toml")
+
+
+def test_a_configuration_cannot_lose_a_key_in_place_either():
+    cfg = load_config(None, [])
+    with pytest.raises(ConfigError, match=r"^the configuration cannot be changed in place \(del HighwayConfig"):
+        del cfg.highway.lanes_count
+    assert cfg.highway.lanes_count == 4
+    import numpy as np
+    with pytest.raises(ConfigError) as err:
+        cfg.highway.lanes_count = np.arange(100)  # a long value: shortened, on one line
+    assert "\n" not in str(err.value) and "...)" in str(err.value)
