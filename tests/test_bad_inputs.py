@@ -112,14 +112,22 @@ def _bench(env_extra, drop=("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY")):
                           capture_output=True, text=True, env=env)
 
 
+def _unused_display() -> str:
+    """A display number no X server on this machine holds (a fixed one met another session's Xvfb)."""
+    n = next(n for n in range(177, 400) if not os.path.exists(f"/tmp/.X{n}-lock")
+             and not os.path.exists(f"/tmp/.X11-unix/X{n}"))
+    return f":{n}"
+
+
 def test_bench_drive_says_which_video_driver_it_used():
     headless = _bench({})
     assert headless.returncode == 0, headless.stderr
     assert headless.stdout.rstrip().endswith("; video driver offscreen")  # no display: offscreen
-    unreachable = _bench({"DISPLAY": ":77"})  # honoured, but nothing answers there: SDL falls back, and we say so
+    nobody = _unused_display()
+    unreachable = _bench({"DISPLAY": nobody})  # honoured, but nothing answers there: SDL falls back, and we say so
     assert unreachable.returncode == 0, unreachable.stderr
-    assert unreachable.stdout.rstrip().endswith("video driver offscreen (the display :77 was not used)")
-    forced = _bench({"DISPLAY": ":77", "SDL_VIDEODRIVER": "x11"})
+    assert unreachable.stdout.rstrip().endswith(f"video driver offscreen (the display {nobody} was not used)")
+    forced = _bench({"DISPLAY": nobody, "SDL_VIDEODRIVER": "x11"})
     assert forced.returncode == 2 and "Traceback" not in forced.stderr
     assert forced.stderr.strip().splitlines()[-1] == (
         "dt-highway bench drive: error: cannot open the driving window with SDL_VIDEODRIVER=x11 (x11 not available): "
