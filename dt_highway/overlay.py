@@ -228,6 +228,17 @@ def side_of(y_m: float, ego_lane: int, road_map: HighwayMap) -> str:
     return "left" if y_m < centre else "right"
 
 
+def in_lane(y_m: float, ego_lane: int, road_map: HighwayMap) -> bool:
+    """Whether a car is in the ego's lane, by its lateral position (within half a lane width of the lane's centre).
+
+    :param y_m: the car's lateral position (its last fix) [m]
+    :param ego_lane: the ego's lane id
+    :param road_map: the lanes
+    """
+    centre = road_map.first_lane_y_m + ego_lane * road_map.lane_width_m
+    return abs(y_m - centre) < road_map.lane_width_m / 2.0
+
+
 def is_threat(view: TwinVehicleView, ego_lane: int, horizon_s: float, threshold: float) -> bool:
     """Whether the twin predicts that a car moves into the ego's lane within the horizon.
 
@@ -315,8 +326,11 @@ class ShamOverlay:
 
     * when a real mark first appears, its slot car is drawn uniformly (with this overlay's own
       seeded generator) among the cars the fusion placed this frame within ``overlay.max_range_m``
-      that no other sham mark holds; nothing about the cars but their ids enters the draw (never
-      the twin's tag or intention, and not the real mark's car either: it can be drawn too);
+      that no other sham mark holds, and, for a threat cue, that are not in the ego's lane (a real
+      threat is a car in another lane moving into it; "CUTTING IN" on a car already ahead in the
+      ego's lane, its side flipping as it wanders about the lane's centre, gave the placebo away);
+      nothing about the cars but their ids and, for a threat cue, their lane enters the draw
+      (never the twin's tag or intention, and not the real mark's car either: it can be drawn too);
     * the slot car keeps the mark for as long as the real mark is shown; when the fusion stops
       placing the slot car, the sham mark is held at its predicted box like a real one
       (``hold_s``, ending early when the prediction is no longer trusted: :func:`predicted_box`),
@@ -382,7 +396,8 @@ class ShamOverlay:
 
         :param real: the real overlay's marks this frame (hidden from the driver)
         :param cars: the cars the fusion placed this frame within range, by id: ``box`` [px],
-            ``distance_m``, ``rule``, ``side`` (of the ego's lane)
+            ``distance_m``, ``rule``, ``side`` (of the ego's lane), ``in_ego_lane`` (``True``: never under a
+            threat cue's sham mark)
         :param t_s: the frame's time [s]
         :return: the sham marks (``held`` when the slot car is not placed this frame)
         """
@@ -397,7 +412,8 @@ class ShamOverlay:
             rid = int(m["vehicle_id"])
             s = self._slots.get(rid)
             if s is None:
-                free = sorted(set(cars) - taken)
+                threat = m.get("cue") == THREAT_CUE
+                free = sorted(v for v in set(cars) - taken if not (threat and cars[v].get("in_ego_lane", False)))
                 if not free:
                     continue
                 vid = free[int(self.rng.integers(len(free)))]

@@ -163,3 +163,23 @@ def test_a_sham_mark_whose_predicted_box_is_no_longer_trusted_moves_to_another_c
     assert held["vehicle_id"] == car and held["held"]
     (moved,) = sham.update(real, gone, 0.3)  # predicted width 20 of 60: another car, well within the hold
     assert moved["vehicle_id"] != car and not moved["held"]
+
+
+def test_a_threat_sham_mark_never_lands_on_a_car_in_the_egos_lane():
+    """A real threat is a car in another lane moving into the ego's: "CUTTING IN" on a car ahead in the ego's own
+    lane (its side flipping as it wandered about the lane's centre) gave the placebo away in a real-window check.
+    A type mark may sit on any car, as the real one does."""
+    cars = {c: {"box": [10.0 * c, 0.0, 10.0 * c + 5, 5.0], "distance_m": 20.0 + c, "rule": "joint",
+                "side": "left" if c < 4 else "right", "in_ego_lane": c in (2, 3, 4)} for c in range(6)}
+    threat = {"vehicle_id": 99, "box": [0, 0, 1, 1], "label": "cutting in from right", "confidence": 0.7,
+              "distance_m": 30.0, "cue": "threat", "side": "right", "aggressive": False, "held": False}
+    kind = {**threat, "label": "aggressive driver", "cue": "type"}
+    drawn: dict[str, set[int]] = {"threat": set(), "type": set()}
+    for seed in range(200):
+        for real in (threat, kind):
+            (mark,) = ShamOverlay(np.random.default_rng(seed)).update([real], cars, 0.0)
+            drawn[real["cue"]].add(mark["vehicle_id"])
+    assert drawn["threat"] == {0, 1, 5}  # every car outside the lane, and only those
+    assert drawn["type"] == set(cars)
+    only_in_lane = {c: v for c, v in cars.items() if v["in_ego_lane"]}
+    assert ShamOverlay(np.random.default_rng(0)).update([threat], only_in_lane, 0.0) == []  # then no sham mark

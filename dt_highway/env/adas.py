@@ -24,7 +24,7 @@ from dt_highway.camera.pinhole import PinholeCamera
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.truth import CameraTruth
 from dt_highway.config import DTConfig, OverlayConfig
-from dt_highway.overlay import OverlayStabilizer, ShamOverlay, bound_marks, select_items, side_of
+from dt_highway.overlay import OverlayStabilizer, ShamOverlay, bound_marks, in_lane, select_items, side_of
 from dt_highway.perception import (
     Detections,
     Detector,
@@ -118,7 +118,8 @@ class AdasPipeline:
         }
         if self.sham is not None:
             cars = {vid: {"box": list(p.box), "distance_m": p.distance_m, "rule": p.rule,
-                          "side": side_of(views[vid].y_m, ego_lane, self.road_map) if ego_lane >= 0 else None}
+                          "side": side_of(views[vid].y_m, ego_lane, self.road_map) if ego_lane >= 0 else None,
+                          "in_ego_lane": ego_lane >= 0 and in_lane(views[vid].y_m, ego_lane, self.road_map)}
                     for vid, p in placements.items() if p.box is not None and p.distance_m <= self.settings.max_range_m}
             out["overlay"] = self.sham.update(marks, cars, sim_time_s)
             out["real_overlay"] = marks
