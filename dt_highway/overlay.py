@@ -224,7 +224,7 @@ def side_of(y_m: float, ego_lane: int, road_map: HighwayMap) -> str:
     :param road_map: the lanes
     :return: ``"left"`` or ``"right"``
     """
-    centre = road_map.first_lane_y_m + ego_lane * road_map.lane_width_m
+    centre = road_map.lane_centre_y_m(ego_lane)
     return "left" if y_m < centre else "right"
 
 
@@ -235,7 +235,7 @@ def in_lane(y_m: float, ego_lane: int, road_map: HighwayMap) -> bool:
     :param ego_lane: the ego's lane id
     :param road_map: the lanes
     """
-    centre = road_map.first_lane_y_m + ego_lane * road_map.lane_width_m
+    centre = road_map.lane_centre_y_m(ego_lane)
     return abs(y_m - centre) < road_map.lane_width_m / 2.0
 
 

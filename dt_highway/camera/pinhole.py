@@ -31,6 +31,13 @@ import numpy as np
 from dt_highway._jit import kernel
 
 
+def _check_pixels(**sizes: object) -> None:
+    """Refuse an image size that is not a whole number of pixels > 0, in one line naming it."""
+    for name, v in sizes.items():
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v <= 0:
+            raise ValueError(f"{name} must be a whole number of pixels > 0 (got {v!r})")
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Image size and the pinhole's intrinsic parameters.
@@ -53,10 +60,7 @@ class Intrinsics:
     def __post_init__(self) -> None:
         """Refuse a size that is not a whole number of pixels > 0, and focal lengths or a principal point that are
         not finite (focal lengths > 0), in one line."""
-        for name in ("width_px", "height_px"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v <= 0:
-                raise ValueError(f"{name} must be a whole number of pixels > 0 (got {v!r})")
+        _check_pixels(width_px=self.width_px, height_px=self.height_px)
         for name in ("fx_px", "fy_px", "cx_px", "cy_px"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) \
@@ -71,9 +75,7 @@ class Intrinsics:
 
         :raises ValueError: on a non-positive size or a field of view outside (0, pi)
         """
-        for name, v in (("width_px", width_px), ("height_px", height_px)):
-            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v <= 0:
-                raise ValueError(f"{name} must be a whole number of pixels > 0 (got {v!r})")
+        _check_pixels(width_px=width_px, height_px=height_px)
         if not 0.0 < hfov_rad < math.pi:
             raise ValueError(f"horizontal field of view must be in (0, pi) rad (got {hfov_rad})")
         f = width_px / (2.0 * math.tan(hfov_rad / 2.0))

@@ -185,7 +185,7 @@ class _Recorder:
         ego = env.vehicle
         ego_lane = int(ego.lane_index[2])
         road = env.road_map
-        lane_y = road.first_lane_y_m + ego_lane * road.lane_width_m
+        lane_y = road.lane_centre_y_m(ego_lane)
         for v in env.road.vehicles:
             if v is ego or not getattr(v, "dt_connected", False):
                 continue

@@ -369,7 +369,7 @@ def picture_road(network: RoadNetwork, picture: TwinPicture, road_map: HighwayMa
                                                     picture.lateral_speed_mps))
         lane = int(lanes[i])
         lane_index = ("0", "1", lane)
-        offset = y - (road_map.first_lane_y_m + lane * road_map.lane_width_m)
+        offset = y - road_map.lane_centre_y_m(lane)
         side = _moving(picture, i, offset, vlat, rng)
         side = side if 0 <= lane + side < road_map.n_lanes else 0
         aggressive, chasing = _type(picture, i, vid != ego_id, rng)

@@ -472,7 +472,7 @@ def intention_inputs(
     slope = np.where((n1 >= 3) & (den > 0), (tc * yc).sum(axis=1) / np.where(den > 0, den, 1.0), 0.0)
 
     lane = road.lane_of(y05)
-    centre = road.first_lane_y_m + lane * road.lane_width_m
+    centre = road.lane_centre_y_m(lane)
     p_aggr = np.array([p_aggressive(records.get(int(i)), prior_aggressive) for i in ids])
     observed = np.array([min(records[int(i)].observed_s, 120.0) / 120.0 if int(i) in records else 0.0 for i in ids])
     since = np.array([_since_lane_change(records.get(int(i)), now_s) for i in ids])

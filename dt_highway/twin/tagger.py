@@ -35,6 +35,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
@@ -60,6 +61,16 @@ class HighwayMap:
         """:return: the index of the lane whose centre is nearest to ``y_m``."""
         k = np.rint((np.asarray(y_m, dtype=float) - self.first_lane_y_m) / self.lane_width_m)
         return np.clip(k, 0, self.n_lanes - 1).astype(int)
+
+    @overload
+    def lane_centre_y_m(self, lane: int) -> float: ...
+
+    @overload
+    def lane_centre_y_m(self, lane: np.ndarray) -> np.ndarray: ...
+
+    def lane_centre_y_m(self, lane: np.ndarray | int) -> np.ndarray | float:
+        """:return: the lateral position of lane ``lane``'s centre [m] (an array for an array of lanes)."""
+        return self.first_lane_y_m + lane * self.lane_width_m
 
     def lane_of_one(self, y_m: float) -> int:
         """:return: ``int(lane_of(y_m))`` for one finite position, without numpy's per-call cost
