@@ -328,7 +328,10 @@ class RewardConfig(TypedValues):
     jerk: JerkCost = Field(default_factory=JerkCost, description="longitudinal jerk")
 
     def is_highway_only(self) -> bool:
-        """Whether this is highway-env's reward alone, unscaled (the default: no wrapper needed)."""
+        """Whether this is highway-env's reward alone, unscaled (the default: no wrapper needed).
+
+        :return: whether every term equals the default's
+        """
         return self == RewardConfig()
 
 
@@ -596,6 +599,9 @@ class TrainConfig(TypedValues):
         """The env configuration of this policy: its scenario and overrides, its observation
         and action, in the condition it trains in (or ``condition``: ``baseline``/``adas``).
 
+        :param condition: the condition to run in (``None``: the one of the observation, ``adas``, ``adas-threat``
+            or ``baseline``)
+        :return: the loaded env configuration
         :raises ConfigError: on a bad scenario or override
         """
         condition = condition or {"adas": "adas", "adas-threat": "adas-threat"}.get(self.observation, "baseline")
@@ -606,7 +612,10 @@ class TrainConfig(TypedValues):
         return load_config(self.scenario, list(self.set), extra)
 
     def observation_config(self) -> dict[str, Any]:
-        """The ``highway.observation`` table of this setting."""
+        """The ``highway.observation`` table of this setting.
+
+        :return: the table (``Camera``, ``OverlayKinematics`` or ``Kinematics``)
+        """
         if self.observation == "vision":
             return {"type": "Camera", "depth": self.depth}
         kind = "OverlayKinematics" if self.observation in ("adas", "adas-threat") else "Kinematics"
@@ -616,7 +625,10 @@ class TrainConfig(TypedValues):
         return table
 
     def action_config(self) -> dict[str, Any]:
-        """The ``highway.action`` table: the discrete menu over the Driver action."""
+        """The ``highway.action`` table: the discrete menu over the Driver action.
+
+        :return: the table (``DiscreteDriver``, with speeds for the assisted actions, accelerations for pedals)
+        """
         if self.action == "assisted-delayed":
             return {"type": "DiscreteDriver", "assist": True, "speeds_mps": list(self.speeds_mps),
                     "reaction_time_s": self.reaction_time_s, "brake_limit_mps2": self.brake_limit_mps2}
@@ -630,6 +642,7 @@ def parse_train_config(tree: dict[str, Any], where: str = "training config") -> 
 
     :param tree: the file's contents
     :param where: the file, for the message
+    :return: the validated configuration
     :raises ConfigError: one line naming each bad key and what is allowed
     """
     try:
@@ -644,6 +657,8 @@ def load_train_config(path: str | Path) -> TrainConfig:
     ``agents/NAME`` or a bare ``NAME`` missing here is read from the checkout's ``agents/``
     (:func:`~dt_highway.config.find_file`); the scenario it names likewise from ``envs/``, when it is read.
 
+    :param path: the training file, or the name of one in ``agents/``
+    :return: the validated configuration
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
     p = Path(find_file(path, "agents"))

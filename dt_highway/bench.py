@@ -273,6 +273,9 @@ def bench_drive(duration_s: float = 20.0, vehicles: int = 50, width_px: int = 64
     :param width_px: window and camera width [px]
     :param height_px: window and camera height [px]
     :param condition: ``adas`` (fusion and overlay on) or ``baseline``
+    :param seed: traffic seed
+    :param scenario: scenario file (``None``: the defaults)
+    :param overrides: further ``--set`` strings (after those of ``vehicles``, ``width_px`` and ``height_px``)
     :return: frame-time median, p90, p99 and max [ms] of the frames that drew a picture, frames,
         ``fps``: pictures shown per second of the trial's wall time (at most the simulation
         frequency: a picture is drawn when a step changed it), simulated over wall time (1.0: the
@@ -399,6 +402,8 @@ def _steps_per_s(env: gym.Env, seed: int, steps: int, action: int = 1) -> float:
 def deviation_steps(deviation_s: float) -> int:
     """The decisions (env steps) of :func:`bench_sim`'s deviation run of ``deviation_s`` [s].
 
+    :param deviation_s: length of the deviation run [s]
+    :return: the number of env steps (``deviation_s`` x the policy frequency, rounded half up)
     :raises ValueError: when that is none (one line naming the least ``deviation_s``)
     """
     f = SIM_SCENARIO["policy_frequency"]

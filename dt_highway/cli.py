@@ -236,7 +236,11 @@ MIN_OBSERVED_S = 30.0
 
 
 def cmd_twin_eval(args: argparse.Namespace) -> int:
-    """``dt-highway twin-eval``: the twin's aggressive tags (or ``--intent``, its intention) scored on episodes."""
+    """``dt-highway twin-eval``: the twin's aggressive tags (or ``--intent``, its intention) scored on episodes.
+
+    :param args: the parsed command line of ``dt-highway twin-eval``
+    :return: the exit status (0 on success)
+    """
     if args.population is not None:
         for text in args.overrides:
             set_to = override_value(text, "traffic.population")
@@ -363,7 +367,11 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
 
 
 def cmd_train_tagger(args: argparse.Namespace) -> int:
-    """Fit the twin's evidence tagger on simulated training seeds (the continuum by default)."""
+    """Fit the twin's evidence tagger on simulated training seeds (the continuum by default).
+
+    :param args: the parsed command line of ``dt-highway train-tagger``
+    :return: the exit status (0 on success)
+    """
     args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
     _weights_out(args, ".json")
@@ -379,7 +387,11 @@ def cmd_train_tagger(args: argparse.Namespace) -> int:
 
 
 def cmd_train_intent(args: argparse.Namespace) -> int:
-    """Train the twin's lane-change intention network on simulated fixes (training seeds)."""
+    """Train the twin's lane-change intention network on simulated fixes (training seeds).
+
+    :param args: the parsed command line of ``dt-highway train-intent``
+    :return: the exit status (0 on success)
+    """
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     driver, extra = _intent_driver(args)
@@ -408,7 +420,11 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
 
 
 def cmd_train_chase(args: argparse.Namespace) -> int:
-    """Train the twin's chase detector on simulated fixes and score it on held-out seeds."""
+    """Train the twin's chase detector on simulated fixes and score it on held-out seeds.
+
+    :param args: the parsed command line of ``dt-highway train-chase``
+    :return: the exit status (0 on success)
+    """
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     cfg = _config(args)
@@ -439,7 +455,11 @@ def cmd_train_chase(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- run
 def cmd_run(args: argparse.Namespace) -> int:
-    """Headless episodes with the twin: what the ego receives, and how the tags compare."""
+    """Headless episodes with the twin: what the ego receives, and how the tags compare.
+
+    :param args: the parsed command line of ``dt-highway run``
+    :return: the exit status (0 on success)
+    """
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -476,7 +496,11 @@ QUICK: _QuickStudy = {"driver": "agents/human.toml", "trials": 3, "duration_s": 
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    """Baseline figures of a scenario for several values of one knob (the calibration table)."""
+    """Baseline figures of a scenario for several values of one knob (the calibration table).
+
+    :param args: the parsed command line of ``dt-highway calibrate``
+    :return: the exit status (0 on success)
+    """
     key, sep, values = args.knob.partition("=")
     if not sep or not key.strip() or not values.strip():
         raise ConfigError(f"--knob must be KEY=V1,V2,... e.g. traffic.dangerous.brake_mps2=2,3,4 (got {args.knob!r})")
@@ -526,7 +550,11 @@ def _check_once(items: Sequence[str], option: str, what: str, key: Callable[[str
 
 
 def cmd_study(args: argparse.Namespace) -> int:
-    """A paired study of one driver in several conditions, then (with --quick) its report."""
+    """A paired study of one driver in several conditions, then (with --quick) its report.
+
+    :param args: the parsed command line of ``dt-highway study``
+    :return: the exit status: 0 when every trial ran or was done already, 1 when one failed, 130 on Ctrl-C
+    """
     from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
 
     if args.quick:
@@ -626,7 +654,11 @@ def _print_summary(path: Path) -> None:
 
 
 def cmd_drive(args: argparse.Namespace) -> int:
-    """One keyboard trial in the driving window."""
+    """One keyboard trial in the driving window.
+
+    :param args: the parsed command line of ``dt-highway drive``
+    :return: the exit status: 0 when the trial completed or ended by a collision, else 1
+    """
     opts = _drive_options(args, args.condition)
     result = run_drive(opts)
     if result["status"] == "not started":  # no folder was written
@@ -660,7 +692,11 @@ def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
 
 def cmd_session(args: argparse.Namespace) -> int:
     """A participant's session: briefing, practice in every condition, the conditions counterbalanced
-    with questionnaires after each, an end screen."""
+    with questionnaires after each, an end screen.
+
+    :param args: the parsed command line of ``dt-highway session``
+    :return: the exit status: 0 when the session is complete, 1 when it stopped early
+    """
     base = _drive_options(args, "baseline")
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
@@ -681,7 +717,11 @@ def _participant(text: str) -> str:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Play a logged keyboard trial back, in the window or as PNG frames (``--frames-out``)."""
+    """Play a logged keyboard trial back, in the window or as PNG frames (``--frames-out``).
+
+    :param args: the parsed command line of ``dt-highway replay``
+    :return: the exit status: 0 when the ego followed the log, 1 when it left the logged path
+    """
     if args.every_s is not None and not args.frames_out:
         raise ConfigError("--every-s S needs --frames-out DIR")
     if args.speed != 1.0 and args.frames_out:
@@ -704,7 +744,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    """The safety-metrics report of a study directory."""
+    """The safety-metrics report of a study directory.
+
+    :param args: the parsed command line of ``dt-highway report``
+    :return: the exit status (0 on success)
+    """
     from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
 
     try:
@@ -718,7 +762,11 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- camera
 def cmd_camera(args: argparse.Namespace) -> int:
-    """Sample frames of the ego camera as PNGs."""
+    """Sample frames of the ego camera as PNGs.
+
+    :param args: the parsed command line of ``dt-highway camera``
+    :return: the exit status (0 on success)
+    """
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
@@ -738,7 +786,11 @@ def cmd_camera(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- matching
 def cmd_matching(args: argparse.Namespace) -> int:
-    """The target-identification benchmark (paper Fig. 6)."""
+    """The target-identification benchmark (paper Fig. 6).
+
+    :param args: the parsed command line of ``dt-highway matching``
+    :return: the exit status (0 on success)
+    """
     cfg = _config(args)
     kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
     bad = [k for k in kinds if k not in ("simulated", "learned")]
@@ -796,7 +848,11 @@ def cmd_matching(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------- bench
 def cmd_bench_camera(args: argparse.Namespace) -> int:
-    """``dt-highway bench camera``: the camera's frame time on busy scenes."""
+    """``dt-highway bench camera``: the camera's frame time on busy scenes.
+
+    :param args: the parsed command line of ``dt-highway bench camera``
+    :return: the exit status (0 on success)
+    """
     cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
         result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
@@ -818,7 +874,11 @@ MAX_BENCH_BOXES = 1000
 
 
 def cmd_bench_fusion(args: argparse.Namespace) -> int:
-    """``dt-highway bench fusion``: the fusion's time per frame for a number of boxes."""
+    """``dt-highway bench fusion``: the fusion's time per frame for a number of boxes.
+
+    :param args: the parsed command line of ``dt-highway bench fusion``
+    :return: the exit status (0 on success)
+    """
     if args.boxes > MAX_BENCH_BOXES:
         raise ConfigError(f"--boxes must be at most {MAX_BENCH_BOXES} (got {args.boxes})")
     result = bench_fusion(args.frames, args.boxes)
@@ -832,7 +892,11 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_drive(args: argparse.Namespace) -> int:
-    """``dt-highway bench drive``: the driving window's frame times, headless or on the display."""
+    """``dt-highway bench drive``: the driving window's frame times, headless or on the display.
+
+    :param args: the parsed command line of ``dt-highway bench drive``
+    :return: the exit status (0 on success)
+    """
     result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
                          find_file_or_default(args.scenario), list(args.overrides))
     if args.json:
@@ -852,12 +916,20 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
 
 
 def find_file_or_default(scenario: str | None) -> str:
-    """The scenario given, or the study's default one (``envs/highway-trial.toml``)."""
+    """The scenario given, or the study's default one (``envs/highway-trial.toml``).
+
+    :param scenario: the scenario file given (``None``: the default)
+    :return: the path to read (:func:`~dt_highway.config.find_file`)
+    """
     return find_file(scenario or STUDY_SCENARIO, "envs")
 
 
 def cmd_bench_memory(args: argparse.Namespace) -> int:
-    """``dt-highway bench memory``: the env's memory over hours of simulated driving."""
+    """``dt-highway bench memory``: the env's memory over hours of simulated driving.
+
+    :param args: the parsed command line of ``dt-highway bench memory``
+    :return: the exit status (0 on success)
+    """
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
         default = " (the default)" if args.every_min == 10.0 else ""
         raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
@@ -888,7 +960,11 @@ def _weights_arg(path: str | None) -> str | None:
 
 
 def cmd_detector_train(args: argparse.Namespace) -> int:
-    """Train the learned detector (resumes from <out>.ckpt)."""
+    """Train the learned detector (resumes from <out>.ckpt).
+
+    :param args: the parsed command line of ``dt-highway detector train``
+    :return: the exit status (0 on success)
+    """
     from dt_highway.perception.learned.model import Architecture  # lazy: torch (~1.3 s)
     from dt_highway.perception.learned.train import TrainSettings, check_training, train  # lazy: torch
 
@@ -934,7 +1010,11 @@ def cmd_detector_train(args: argparse.Namespace) -> int:
 
 
 def cmd_detector_eval(args: argparse.Namespace) -> int:
-    """AP of the learned detector on held-out frames."""
+    """AP of the learned detector on held-out frames.
+
+    :param args: the parsed command line of ``dt-highway detector eval``
+    :return: the exit status (0 on success)
+    """
     from dt_highway.evaluation.detector import evaluate  # lazy: torch (~1.3 s)
     from dt_highway.perception.learned.detector import LearnedDetector  # lazy: torch
 
@@ -967,7 +1047,11 @@ def cmd_detector_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """Train an RL driver with stable-baselines3."""
+    """Train an RL driver with stable-baselines3.
+
+    :param args: the parsed command line of ``dt-highway train``
+    :return: the exit status: 0 on success, 130 when training was interrupted
+    """
     from dt_highway.rl.train import train  # lazy: stable-baselines3 and torch (~1.3 s)
 
     cfg = load_train_config(args.config)
@@ -994,7 +1078,11 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_rl_curve(args: argparse.Namespace) -> int:
-    """Re-draw a policy's training curve (CSV + PNG) from its training log and metadata."""
+    """Re-draw a policy's training curve (CSV + PNG) from its training log and metadata.
+
+    :param args: the parsed command line of ``dt-highway rl-curve``
+    :return: the exit status (0 on success)
+    """
     from dt_highway.rl.curves import write_curve  # lazy: matplotlib
 
     if Path(args.model).suffix != ".zip":
@@ -1005,7 +1093,11 @@ def cmd_rl_curve(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC."""
+    """Any driver (policy or scripted) on the same seeds: return, collisions, speed, TTC.
+
+    :param args: the parsed command line of ``dt-highway evaluate``
+    :return: the exit status (0 on success)
+    """
     if args.episodes_json and not args.json:
         raise ConfigError("--episodes-json needs --json (--out FILE writes every episode's metrics without it)")
     scenario = args.scenario or EVAL_SCENARIO
@@ -1038,7 +1130,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_rl_compare(args: argparse.Namespace) -> int:
-    """Rows of driver x condition (x ablation) on the same held-out seeds, with paired tests (issue 22)."""
+    """Rows of driver x condition (x ablation) on the same held-out seeds, with paired tests (issue 22).
+
+    :param args: the parsed command line of ``dt-highway rl-compare``
+    :return: the exit status (0 on success)
+    """
     rows = parse_rows(args.rows)  # a bad row: one line, before any env
     held = [p.name for p in compare_paths(args.out) if p.exists()]
     if held and not args.force:  # an earlier comparison (hours of episodes) is not replaced unasked
@@ -1085,7 +1181,11 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def cmd_bench_sim(args: argparse.Namespace) -> int:
-    """``dt-highway bench sim``: the fast road's steps per second against highway-env's, and where they part."""
+    """``dt-highway bench sim``: the fast road's steps per second against highway-env's, and where they part.
+
+    :param args: the parsed command line of ``dt-highway bench sim``
+    :return: the exit status (0 on success)
+    """
     try:
         deviation_steps(args.deviation_s)  # before the throughput runs
     except ValueError as exc:
@@ -1111,7 +1211,11 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_train(args: argparse.Namespace) -> int:
-    """``dt-highway bench train``: env steps and PPO timesteps per second of a training file."""
+    """``dt-highway bench train``: env steps and PPO timesteps per second of a training file.
+
+    :param args: the parsed command line of ``dt-highway bench train``
+    :return: the exit status (0 on success)
+    """
     cfg = load_train_config(args.config)
     total = 2 * args.env_steps + 2 * args.timesteps  # PPO rounds up to whole rollouts: about
     with _progress(total, "bench train", args.quiet or args.json) as bar:
@@ -1144,7 +1248,11 @@ def cmd_bench_train(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_detector(args: argparse.Namespace) -> int:
-    """``dt-highway bench detector``: the learned detector's frames per second on the CPU."""
+    """``dt-highway bench detector``: the learned detector's frames per second on the CPU.
+
+    :param args: the parsed command line of ``dt-highway bench detector``
+    :return: the exit status (0 on success)
+    """
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
     except (FileNotFoundError, ValueError) as exc:

@@ -36,7 +36,10 @@ _MODE = {"adas-type": "type", "adas-threat": "threat", "sham-type": "type", "sha
 
 
 def check_condition(condition: str) -> str:
-    """:return: ``condition`` when it is one of :data:`CONDITIONS`
+    """Check a condition's name.
+
+    :param condition: the name to check
+    :return: ``condition`` when it is one of :data:`CONDITIONS`
     :raises ConfigError: one line naming the allowed ones
     """
     if condition not in CONDITIONS:
@@ -47,6 +50,8 @@ def check_condition(condition: str) -> str:
 def shows_overlay(condition: str) -> bool:
     """Whether the driver sees an overlay (every condition but ``baseline``).
 
+    :param condition: one of :data:`CONDITIONS`
+    :return: ``False`` for ``baseline``, else ``True``
     :raises ConfigError: on an unknown condition
     """
     return check_condition(condition) != "baseline"
@@ -55,6 +60,8 @@ def shows_overlay(condition: str) -> bool:
 def is_sham(condition: str) -> bool:
     """Whether a condition is the placebo.
 
+    :param condition: one of :data:`CONDITIONS`
+    :return: whether it is ``sham``, ``sham-type`` or ``sham-threat``
     :raises ConfigError: on an unknown condition
     """
     return check_condition(condition).startswith("sham")
@@ -63,6 +70,8 @@ def is_sham(condition: str) -> bool:
 def display_name(condition: str) -> str:
     """What a participant is told the condition is: ``baseline`` or ``adas`` (module docstring).
 
+    :param condition: one of :data:`CONDITIONS`
+    :return: ``baseline`` or ``adas``
     :raises ConfigError: on an unknown condition
     """
     return "adas" if shows_overlay(condition) else "baseline"
@@ -97,6 +106,7 @@ def driver_config(scenario: str | None, overrides: Sequence[str], condition: str
     :param overrides: ``dotted.key=value`` strings (``--set``)
     :param condition: one of :data:`CONDITIONS`
     :param driver_overrides: what the driver adds to the configuration
+    :return: the checked configuration
     :raises ConfigError: one line, on a bad scenario, condition or override, or a twin model file that cannot be
         read (:func:`~dt_highway.twin.cloud.check_models`)
     """

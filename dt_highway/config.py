@@ -142,6 +142,8 @@ class FrozenSettings(BaseModel):
         :class:`ConfigError`; made by hand, pydantic's ``ValidationError`` (a ``ValueError``)
         names each bad field.
 
+        :param args: field values in their declared order
+        :param kwargs: field values by name
         :raises pydantic.ValidationError: on an unknown field, a wrong type or an out-of-range value
         :raises TypeError: on more positional values than fields, or a field given twice
         """
@@ -1046,6 +1048,7 @@ def validate_section(section: type[_S], where: str, **values: Any) -> _S:
     :param section: the section model (:class:`OverlayConfig`)
     :param where: its dotted key in the tree (``"overlay"``)
     :param values: its values; missing ones take the section's defaults
+    :return: the validated section
     :raises ConfigError: naming ``where.key`` and what is allowed
     """
     try:
@@ -1214,6 +1217,7 @@ def read_toml(path: str | Path, what: str) -> dict[str, Any]:
 
     :param path: the file
     :param what: what it is, for the message (``"driver file"``)
+    :return: the nested dict it holds (not yet validated)
     :raises ConfigError: one line, if it is missing, unreadable or not valid TOML
     """
     p = Path(path)
@@ -1259,7 +1263,9 @@ def parse_override(text: str, option: str = "--set") -> dict[str, Any]:
     The value is read as a TOML value (``5``, ``0.5``, ``true``, ``[1, 2]``, ``"text"``);
     anything that is not valid TOML is taken as a plain string.
 
+    :param text: the override, ``dotted.key=value``
     :param option: the command-line option the text came from (named in the error)
+    :return: a one-key nested dict (:func:`dotted_tree`)
     :raises ConfigError: when there is no ``=`` or the key is empty
     """
     if "=" not in text:
@@ -1281,6 +1287,10 @@ def override_value(text: str, key: str, option: str = "--set") -> Any:
     """The value the override ``text`` gives the dotted ``key``, set by name or inside a table it sets
     (``overlay={mode="threat"}``); ``None`` when it does not set it.
 
+    :param text: the override, ``dotted.key=value``
+    :param key: the dotted key looked for (``"overlay.mode"``)
+    :param option: the command-line option the text came from (named in the error)
+    :return: the value it sets, or ``None``
     :raises ConfigError: as :func:`parse_override`
     """
     tree: Any = parse_override(text, option)
@@ -1290,7 +1300,12 @@ def override_value(text: str, key: str, option: str = "--set") -> Any:
 
 
 def dotted_tree(key: str, value: Any) -> dict[str, Any]:
-    """Turn ``("a.b.c", value)`` into ``{"a": {"b": {"c": value}}}`` (a one-key layer to merge)."""
+    """Turn ``("a.b.c", value)`` into ``{"a": {"b": {"c": value}}}`` (a one-key layer to merge).
+
+    :param key: the dotted key
+    :param value: the value at its end
+    :return: the nested dict
+    """
     parts = key.split(".")
     tree: dict[str, Any] = {parts[-1]: value}
     for part in reversed(parts[:-1]):
@@ -1301,6 +1316,7 @@ def dotted_tree(key: str, value: Any) -> dict[str, Any]:
 def check_overrides(overrides: object) -> tuple[str, ...]:
     """The ``--set`` strings of a Python call, checked: a list (or tuple) of ``dotted.key=value`` strings.
 
+    :param overrides: what the caller passed as overrides
     :return: them, as a tuple
     :raises ConfigError: one line, for a lone string (it would be read letter by letter), a dict or a list of other
         things

@@ -66,8 +66,10 @@ def signals_held(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM), *,
     """Record the signals ``signums`` instead of acting on them until the block is left; then the previous handlers
     are back. Off the main thread, where Python cannot catch signals, nothing is recorded.
 
+    :param signums: the signals to hold
     :param over_foreign: also take a signal whose handler was not set from Python (Ray's, in C), which cannot be put
         back: the default handler follows the block. ``False`` leaves such a signal alone.
+    :return: a context manager that yields the :class:`SignalsSeen` that records them
     """
     seen = SignalsSeen()
     if threading.current_thread() is not threading.main_thread():
@@ -84,7 +86,11 @@ def signals_held(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM), *,
 @contextmanager
 def signals_deferred(signums: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> Iterator[None]:
     """Hold the signals ``signums`` while the block runs, then hand each one that came to the handler it was meant
-    for (a handler not set from Python is left alone: it could not be put back)."""
+    for (a handler not set from Python is left alone: it could not be put back).
+
+    :param signums: the signals to defer
+    :return: a context manager (it yields nothing)
+    """
     seen = SignalsSeen()
     try:
         with signals_held(signums, over_foreign=False) as seen:

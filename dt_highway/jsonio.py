@@ -13,14 +13,22 @@ from typing import Any
 
 def replace_text(path: Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` through a temporary file beside it and :func:`os.replace`, so a
-    crash leaves the earlier file or the new one, never half of one."""
+    crash leaves the earlier file or the new one, never half of one.
+
+    :param path: the file to write
+    :param text: its new content
+    """
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, path)
 
 
 def json_safe(obj: Any) -> Any:
-    """NaN and infinities become ``null`` so the output is strict JSON."""
+    """NaN and infinities become ``null`` so the output is strict JSON.
+
+    :param obj: a value made of dicts, lists, tuples and scalars
+    :return: a copy with non-finite floats as ``None``, tuples as lists and dict keys as strings
+    """
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     if isinstance(obj, dict):
@@ -32,25 +40,41 @@ def json_safe(obj: Any) -> Any:
 
 def finite_number(value: Any) -> float | None:
     """A value read from JSON or TOML as a float when it is a finite number (``true``/``false``,
-    text, NaN and infinities are not), else ``None``."""
+    text, NaN and infinities are not), else ``None``.
+
+    :param value: the value read
+    :return: it as a float, or ``None``
+    """
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         return None
     return float(value)
 
 
 def whole_number(value: Any) -> int | None:
-    """A value as an int when it is an integer (numpy's too; ``true``/``false`` are not), else ``None``."""
+    """A value as an int when it is an integer (numpy's too; ``true``/``false`` are not), else ``None``.
+
+    :param value: the value read
+    :return: it as an int, or ``None``
+    """
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         return None
     return int(value)
 
 
 def positive_number(value: Any) -> float | None:
-    """:func:`finite_number`, when it is also > 0 (a duration, a frequency), else ``None``."""
+    """:func:`finite_number`, when it is also > 0 (a duration, a frequency), else ``None``.
+
+    :param value: the value read
+    :return: it as a float, or ``None``
+    """
     number = finite_number(value)
     return number if number is not None and number > 0 else None
 
 
 def dump_json(obj: Any) -> str:
-    """:return: ``obj`` as strict, indented JSON."""
+    """Strict, indented JSON (:func:`json_safe`).
+
+    :param obj: a value made of dicts, lists, tuples and scalars
+    :return: ``obj`` as strict, indented JSON
+    """
     return json.dumps(json_safe(obj), indent=2, sort_keys=False, allow_nan=False)

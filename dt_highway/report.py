@@ -194,7 +194,11 @@ def metric_label(name: str, tex: bool = False) -> str:
 
 def condition_order(conditions: Sequence[Any]) -> list[str]:
     """Conditions in the report's order: as in :data:`~dt_highway.conditions.CONDITIONS`
-    (``baseline``, ``adas``, ``adas-*``, ``sham*``), then any other by name."""
+    (``baseline``, ``adas``, ``adas-*``, ``sham*``), then any other by name.
+
+    :param conditions: the conditions found (each taken as its string, duplicates once)
+    :return: their names, in that order
+    """
     names = {str(c) for c in conditions}
     return [c for c in CONDITIONS if c in names] + sorted(names - set(CONDITIONS))
 
@@ -439,7 +443,15 @@ def _plain(x: Any) -> Any:
 
 def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
                  names: Sequence[str] = SUMMARY_METRICS) -> dict[str, Any]:
-    """:func:`dt_highway.metrics.stats.paired_tests` of the report's metrics (``names``: :data:`SUMMARY_METRICS`)."""
+    """:func:`dt_highway.metrics.stats.paired_tests` of the report's metrics (``names``: :data:`SUMMARY_METRICS`).
+
+    :param metrics: one row per trial (:func:`collect`)
+    :param a: the reference condition
+    :param b: the condition tested against it
+    :param names: the columns tested
+    :return: per metric: ``n_pairs``, ``mean_diff``, ``wilcoxon_p``, ``ttest_p``, ``effect_size_dz``
+    :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
+    """
     return stats_paired_tests(metrics, a, b, names)
 
 
@@ -447,6 +459,9 @@ def compare(metrics: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
     """One paired comparison ``b - a``: the tests (:func:`paired_tests`), how many pairs there
     are and which of them hold a trial cut short by a collision.
 
+    :param metrics: one row per trial (:func:`collect`)
+    :param a: the reference condition
+    :param b: the condition tested against it
     :return: ``a``, ``b``, ``n_pairs``, ``small_sample`` (fewer than :data:`MIN_PAIRS` pairs),
         ``cut_short_pairs`` (pair keys), ``tests``
     :raises ValueError: one line, when ``metrics`` holds no trial of ``a`` or ``b`` (a mistyped name)
@@ -523,6 +538,8 @@ def summarise(metrics: pd.DataFrame, extra: dict[str, Any]) -> dict[str, Any]:
 
     :param metrics: :func:`collect`'s metrics (one row per trial)
     :param extra: :func:`collect`'s plot data
+    :return: the summary: ``conditions``, ``comparisons``, ``paired_tests``, ``excluded``, ``aborted_trials``,
+        ``cut_short_trials``, ``paper``, ``labels``, ``definitions``, ``notes``
     :raises ValueError: on other tables (a one-line note that says so)
     """
     if not isinstance(metrics, pd.DataFrame) or not {"condition", "status"} <= set(metrics.columns) \

@@ -62,6 +62,10 @@ def freeze_inputs(out: str | Path, driver: str, scenario: str | None) -> tuple[s
     half-way, and the study directory keeps a record of what it ran. Resuming a study with a
     file that differs from its copy is refused.
 
+    :param out: the study directory
+    :param driver: driver file (``agents/<name>.toml``, or a policy's ``.zip``)
+    :param scenario: scenario file or ``None``
+    :return: the paths of the driver's copy and of the scenario's (``None`` when no scenario)
     :raises ConfigError: when a file is missing or differs from the study's copy
     """
     inputs = Path(out) / "inputs"
@@ -93,7 +97,9 @@ def check_resume(out: str | Path, specs: Sequence[TrialSpec]) -> dict[str, dict[
     """Refuse to resume a study with trials planned differently (seed, ``--set`` values, driver
     or scenario) from those it was started with (its ``study.json``).
 
-    :return: the trials on record, by directory
+    :param out: the study directory
+    :param specs: the trials planned now (:func:`plan`)
+    :return: the trials on record, by directory (empty when there is no ``study.json``)
     :raises ConfigError: naming the first trial that differs, or a ``study.json`` that cannot be read
     """
     record = Path(out) / "study.json"
@@ -152,7 +158,11 @@ class TrialSpec:
 
 
 def is_completed(directory: str | Path) -> bool:
-    """Whether a trial directory holds a completed trial (its ``meta.json`` says so)."""
+    """Whether a trial directory holds a completed trial (its ``meta.json`` says so).
+
+    :param directory: the trial's directory
+    :return: ``True`` when its ``meta.json`` has ``"status": "completed"`` (``False`` when it cannot be read)
+    """
     try:
         return json.loads((Path(directory) / "meta.json").read_text()).get("status") == "completed"
     except (OSError, ValueError, AttributeError):
@@ -162,6 +172,7 @@ def is_completed(directory: str | Path) -> bool:
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Run one trial and write its log.
 
+    :param spec: the trial
     :return: ``status`` (``completed``, ``skipped`` or ``failed``), the directory, the
         error (when failed) and the trial's metrics (when it has a log)
     """
@@ -242,8 +253,16 @@ def plan(out: str | Path, driver: str, conditions: Sequence[str], trials: int, s
          scenario: str | None = None, overrides: Sequence[str] = (), parquet: bool = False) -> list[TrialSpec]:
     """The trials of a paired study, pair by pair (trial ``i`` of every condition gets seed ``seed + i``).
 
+    :param out: the study directory (the trials go to ``<out>/trials/<condition>-<NNN>``)
+    :param driver: driver file (``agents/<name>.toml``)
     :param conditions: any of :data:`~dt_highway.conditions.CONDITIONS` (``baseline``, ``adas``,
         ``adas-type``, ``adas-threat``, ``sham``...), each once
+    :param trials: trials per condition (pairs) [-]
+    :param seed: seed of the first pair, an integer >= 0
+    :param scenario: scenario file or ``None``
+    :param overrides: ``--set`` strings
+    :param parquet: also write each trial's ``steps.parquet`` once it has completed
+    :return: one :class:`TrialSpec` per trial
     :raises ConfigError: on an unknown or repeated condition, ``trials < 1``, a seed that is not an integer >= 0, or
         an ``overlay.mode`` override beside a condition that names its mode
     """
@@ -279,6 +298,7 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
     :param progress: called with each trial's result as it finishes
     :param backend: ``process`` (default) or ``ray``
     :param ray_address: an existing Ray cluster's address (``ray`` backend)
+    :return: the trials completed, skipped and failed
     :raises ConfigError: on a backend that cannot run (:func:`check_backend`) or a resumed study's other settings
     """
     check_backend(backend, ray_address)

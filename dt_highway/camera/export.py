@@ -29,7 +29,11 @@ def colourise_depth(depth_m: np.ndarray, max_range_m: float) -> np.ndarray:
 
 
 def instance_colours(ids: np.ndarray) -> np.ndarray:
-    """A distinct, stable colour ``(N, 3)`` per vehicle id (hue by the golden ratio), black for 0."""
+    """A distinct, stable colour ``(N, 3)`` per vehicle id (hue by the golden ratio), black for 0.
+
+    :param ids: vehicle ids ``(N,)`` (0 = background)
+    :return: ``uint8 (N, 3)`` RGB, one colour per id
+    """
     ids = np.asarray(ids, dtype=np.int64)
     hue = ((ids * 0.6180339887) % 1.0 * 180).astype(np.uint8)
     hsv = np.stack([hue, np.full_like(hue, 200), np.full_like(hue, 255)], axis=-1)[None]
@@ -39,7 +43,11 @@ def instance_colours(ids: np.ndarray) -> np.ndarray:
 
 
 def colourise_instance(instance: np.ndarray) -> np.ndarray:
-    """The instance-id map as an RGB picture (one colour per vehicle, black background)."""
+    """The instance-id map as an RGB picture (one colour per vehicle, black background).
+
+    :param instance: ``(H, W)`` vehicle id per pixel, 0 = background
+    :return: ``uint8 (H, W, 3)`` RGB
+    """
     ids, inverse = np.unique(instance, return_inverse=True)
     return instance_colours(ids)[inverse.reshape(instance.shape)]
 
@@ -47,6 +55,8 @@ def colourise_instance(instance: np.ndarray) -> np.ndarray:
 def write_png(path: Path, rgb: np.ndarray) -> None:
     """Write an RGB image as PNG.
 
+    :param path: the PNG file to write
+    :param rgb: ``uint8 (H, W, 3)`` RGB image
     :raises OSError: if the file cannot be written
     """
     if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):

@@ -73,6 +73,12 @@ class Intrinsics:
     ) -> Intrinsics:
         """Square pixels with ``f = W / (2 tan(hfov / 2))``, principal point at the centre by default.
 
+        :param width_px: image width [px]
+        :param height_px: image height [px]
+        :param hfov_rad: horizontal field of view [rad]
+        :param cx_px: principal point ``u`` [px] (default: the centre, ``(W - 1) / 2``)
+        :param cy_px: principal point ``v`` [px] (default: the centre, ``(H - 1) / 2``)
+        :return: the intrinsics
         :raises ValueError: on a non-positive size or a field of view outside (0, pi)
         """
         _check_pixels(width_px=width_px, height_px=height_px)
@@ -182,6 +188,7 @@ class PinholeCamera:
     def extrinsics(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         """World-to-camera rotation and translation for an ego pose (the inverse of Eq. 1).
 
+        :param pose: the ego's pose
         :return: ``R`` (3x3, proper rotation) and ``t`` (3,) with ``P_c = R P + t`` for ``P``
             in the right-handed world frame (``z`` down); see the module docstring. The last
             pose's pair is kept (read-only): a frame's projections all share one pose
@@ -219,7 +226,12 @@ class PinholeCamera:
         return np.array([m.forward_m, m.lateral_m, -m.height_m])
 
     def to_camera(self, points_world: np.ndarray, pose: Pose) -> np.ndarray:
-        """World points (``z`` up) in the camera frame, ``(N, 3)`` [m]."""
+        """World points (``z`` up) in the camera frame, ``(N, 3)`` [m].
+
+        :param points_world: ``(N, 3)`` or ``(3,)`` points, ``z`` up [m]
+        :param pose: the ego's pose
+        :return: ``(N, 3)`` points in the camera frame (``X`` right, ``Y`` down, ``Z`` forward) [m]
+        """
         rot, t = self.extrinsics(pose)
         return _z_down(np.atleast_2d(points_world)) @ rot.T + t
 
@@ -256,7 +268,13 @@ class PinholeCamera:
         return _perspective(np.ascontiguousarray(pc, dtype=float), k.fx_px, k.fy_px, k.cx_px, k.cy_px, self.near_m)
 
     def unproject(self, uv_px: np.ndarray, depth_m: np.ndarray, pose: Pose) -> np.ndarray:
-        """Pixels with planar depth back to world points (``z`` up), ``(N, 3)`` [m]."""
+        """Pixels with planar depth back to world points (``z`` up), ``(N, 3)`` [m].
+
+        :param uv_px: ``(N, 2)`` or ``(2,)`` pixel coordinates [px]
+        :param depth_m: ``(N,)`` planar depth ``Z_c`` per pixel [m]
+        :param pose: the ego's pose
+        :return: ``(N, 3)`` world points, ``z`` up [m]
+        """
         uv = np.atleast_2d(np.asarray(uv_px, dtype=float))
         z = np.atleast_1d(np.asarray(depth_m, dtype=float))
         k = self.intrinsics
@@ -265,7 +283,12 @@ class PinholeCamera:
         return _z_down((pc - t) @ rot)
 
     def range_from_depth(self, uv_px: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
-        """Euclidean range [m] of pixels with planar depth ``depth_m`` [m] (depth-image conversion)."""
+        """Euclidean range [m] of pixels with planar depth ``depth_m`` [m] (depth-image conversion).
+
+        :param uv_px: pixel coordinates, ``(..., 2)`` [px]
+        :param depth_m: planar depth ``Z_c`` per pixel, ``(...)`` [m]
+        :return: Euclidean distance to the camera centre per pixel, ``(...)`` [m]
+        """
         uv = np.asarray(uv_px, dtype=float)
         k = self.intrinsics
         xn = (uv[..., 0] - k.cx_px) / k.fx_px

@@ -111,7 +111,11 @@ class CameraImage:
     """The renderer's ray norms (one read-only array shared by all its images)"""
 
     def range_m(self) -> np.ndarray:
-        """Euclidean range image ``float32 (H, W)`` [m]: distance from the camera centre."""
+        """Euclidean range image ``float32 (H, W)`` [m]: distance from the camera centre.
+
+        :return: ``float32 (H, W)`` distance of each pixel's point from the camera centre [m]
+        :raises ValueError: if the image carries no ray norms (not made by the renderer)
+        """
         if self._ray_norm is None:
             raise ValueError("this image has no ray norms (build it with CameraRenderer.render)")
         return self.depth_m * self._ray_norm
@@ -119,7 +123,10 @@ class CameraImage:
     def read_only_copy(self) -> CameraImage:
         """A copy of this image whose arrays are read-only and shared with nothing: what a
         driver is given (:func:`~dt_highway.env.senses.perceive`). Writing into it raises
-        ``ValueError``; even with its flags set writeable again it cannot reach this image."""
+        ``ValueError``; even with its flags set writeable again it cannot reach this image.
+
+        :return: the read-only copy
+        """
         ray = self._ray_norm
         return CameraImage(_read_only_copy(self.rgb), _read_only_copy(self.depth_m), self.pose, self.time_s,
                            None if ray is None else _read_only_copy(ray))
@@ -237,7 +244,11 @@ CAR = _car_model()
 
 
 def paint_of(vehicle_ids: np.ndarray) -> np.ndarray:
-    """Paint colours ``(N, 3)`` of vehicles, a hash of their ids (Knuth's multiplicative)."""
+    """Paint colours ``(N, 3)`` of vehicles, a hash of their ids (Knuth's multiplicative).
+
+    :param vehicle_ids: vehicle ids ``(N,)``
+    :return: ``float (N, 3)`` RGB paint per vehicle, in 0-255
+    """
     h = (np.asarray(vehicle_ids, dtype=np.uint64) * np.uint64(2654435761)) % np.uint64(2**32)
     return _PAINTS[(h >> np.uint64(7)) % np.uint64(len(_PAINTS))]
 

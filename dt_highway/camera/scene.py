@@ -49,6 +49,8 @@ class RoadScene:
     def from_road(cls, road: Road) -> RoadScene:
         """Read the lanes of a highway-env road.
 
+        :param road: a highway-env road of straight lanes along ``+x``
+        :return: its extent and painted lines
         :raises ValueError: if a lane is not a straight lane along ``+x`` (the camera draws
             straight highways only)
         """
@@ -109,7 +111,12 @@ class VehicleSet:
 
     @classmethod
     def from_road(cls, road: Road, exclude: object | None = None) -> VehicleSet:
-        """The vehicles of a road, without ``exclude`` (the ego carrying the camera)."""
+        """The vehicles of a road, without ``exclude`` (the ego carrying the camera).
+
+        :param road: the highway-env road
+        :param exclude: a vehicle to leave out (the ego), or ``None``
+        :return: one row per remaining vehicle, with its highway-env ``LENGTH`` and ``WIDTH``
+        """
         vs = [v for v in road.vehicles if v is not exclude]
         if not vs:
             return cls.empty()
@@ -124,7 +131,10 @@ class VehicleSet:
 
     @classmethod
     def empty(cls) -> VehicleSet:
-        """No vehicles."""
+        """No vehicles.
+
+        :return: a set of zero rows
+        """
         z = np.zeros(0)
         return cls(np.zeros(0, dtype=np.int32), z, z, z, z, z)
 
@@ -135,7 +145,13 @@ class VehicleSet:
         length_m: float = 5.0,
         width_m: float = 2.0,
     ) -> VehicleSet:
-        """Build a set from ``(id, x, y[, heading])`` rows with one size (tests, examples)."""
+        """Build a set from ``(id, x, y[, heading])`` rows with one size (tests, examples).
+
+        :param rows: ``(id, x [m], y [m])`` or ``(id, x [m], y [m], heading [rad])`` per vehicle (heading 0 if left out)
+        :param length_m: every vehicle's length [m]
+        :param width_m: every vehicle's width [m]
+        :return: one row per vehicle
+        """
         if not rows:
             return cls.empty()
         arr = np.array([list(r) + [0.0] * (4 - len(r)) for r in rows], dtype=float)

@@ -44,7 +44,10 @@ class VehicleTruth:
     truncated: bool
 
     def to_dict(self) -> dict:
-        """A JSON-ready dict."""
+        """A JSON-ready dict.
+
+        :return: the fields by name
+        """
         return dict(self.__dict__)
 
 

@@ -35,12 +35,18 @@ class Driver:
         self.name = name
 
     def params(self) -> dict[str, Any]:
-        """The driver's resolved parameters (recorded in each trial's metadata)."""
+        """The driver's resolved parameters (recorded in each trial's metadata).
+
+        :return: the parameters by name (none for the base class)
+        """
         return {}
 
     def config_overrides(self) -> dict[str, Any]:
         """What the driver needs in the env's configuration, whatever the condition (a camera
-        of a given size for a vision policy); merged over the condition's settings."""
+        of a given size for a vision policy); merged over the condition's settings.
+
+        :return: the env settings to merge, as a nested dict (none for the base class)
+        """
         return {}
 
     def reset(self, seed: int) -> None:
@@ -53,5 +59,6 @@ class Driver:
         """One decision: ``[acceleration m/s^2, lane request -1..1]``.
 
         :param perception: what the driver perceives now (the parts :attr:`senses` asks for)
+        :return: the action ``[acceleration m/s^2, lane request -1..1]``
         """
         raise NotImplementedError

@@ -21,6 +21,7 @@ def make_driver(tree: dict[str, Any], name: str = "driver") -> Driver:
 
     :param tree: the file's contents (``kind`` and parameters)
     :param name: the driver's name
+    :return: the scripted driver (human-like, IDM or random, as ``kind`` says)
     :raises ConfigError: on an unknown kind, key or bad value
     """
     spec = parse_driver_file(tree)
@@ -38,6 +39,8 @@ def load_driver(path: str | Path) -> Driver:
     ``agents/NAME`` or a bare ``NAME`` missing here is read from the checkout's ``agents/``
     (:func:`~dt_highway.config.find_file`).
 
+    :param path: the driver file (``.toml`` or ``.zip``), or a name under ``agents/``
+    :return: the driver, named after the file's stem
     :raises ConfigError: on a missing or unreadable file, or bad contents
     """
     p = Path(find_file(path, "agents"))

@@ -20,6 +20,7 @@ def idm_accel(speed_mps: float, gap_m: float, closing_mps: float, p: IDMParams,
     :param p: parameters
     :param desired_speed_mps: overrides ``v0``
     :param time_headway_s: overrides ``T``
+    :return: the acceleration [m/s^2]
     """
     v0 = p.desired_speed_mps if desired_speed_mps is None else desired_speed_mps
     t = p.time_headway_s if time_headway_s is None else time_headway_s

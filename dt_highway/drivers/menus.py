@@ -110,6 +110,7 @@ class AssistedMenu:
 
         :param perception: what the driver perceives now (:attr:`SENSES`: surroundings, entering)
         :param k: the choice, ``0 .. size - 1``
+        :return: the action ``[acceleration m/s^2, lane -1/0/+1]``
         :raises ValueError: on a choice outside the menu, or a perception without the surroundings
         """
         if not 0 <= k < self.size:
@@ -240,6 +241,8 @@ class DiscreteMenu:
     def choice(self, index: int | np.integer | np.ndarray) -> int:
         """The entry ``index`` names (an int, or a one-element array as a policy returns it).
 
+        :param index: the menu index, an int or an array whose first element is it
+        :return: the entry, ``0 .. size - 1``
         :raises ValueError: outside ``0 .. size - 1``
         """
         k = int(np.asarray(index).reshape(-1)[0])
@@ -252,6 +255,7 @@ class DiscreteMenu:
 
         :param k: the entry (:meth:`choice`)
         :param perception: what the driver perceives now (:attr:`senses`; raw pedals need none)
+        :return: the action ``[acceleration m/s^2, lane -1..1]``
         """
         if self.assisted is not None:
             if perception is None:

@@ -94,13 +94,19 @@ class PolicyDriver(Driver):
         self.zeroed = tuple(self.features.index(n) for n in names)
 
     def params(self) -> dict[str, Any]:
-        """The policy's algorithm, observation, action, timesteps trained and package versions (for the trial log)."""
+        """The policy's algorithm, observation, action, timesteps trained and package versions (for the trial log).
+
+        :return: those by name
+        """
         return {"algorithm": self.config.algorithm, "observation": self.config.observation, "action": self.config.action,
                 "timesteps": self.meta.get("timesteps_done"), "versions": self.meta.get("versions")}
 
     def config_overrides(self) -> dict[str, Any]:
         """A vision policy needs the camera on, in either condition (its frames are resized to
-        the size it was trained on, so the detector and fusion keep the study's camera)."""
+        the size it was trained on, so the detector and fusion keep the study's camera).
+
+        :return: the camera switched on for a vision policy, else nothing
+        """
         return {"camera": {"enabled": True}} if self.config.observation == "vision" else {}
 
     def _trained(self, *keys: str) -> Any:
@@ -113,6 +119,7 @@ class PolicyDriver(Driver):
         """Start an episode with a fresh action menu, the one the policy was trained with, and
         check it is the menu its network chooses from.
 
+        :param seed: unused (the policy acts deterministically)
         :raises ConfigError: one line, on a menu its metadata cannot make or of another size
         """
         settings = dict(self.action_settings)
@@ -129,7 +136,11 @@ class PolicyDriver(Driver):
                               f"menu has {menu_space}")
 
     def act(self, perception: Perception) -> np.ndarray:
-        """The policy's action on the observation in ``perception`` (deterministic), as a ``Driver`` action."""
+        """The policy's action on the observation in ``perception`` (deterministic), as a ``Driver`` action.
+
+        :param perception: what the driver perceives now (its observation; with the assisted menu its surroundings)
+        :return: the action ``[acceleration m/s^2, lane -1..1]``
+        """
         if self.menu is None:
             self.reset(0)
         assert self.menu is not None
@@ -148,6 +159,8 @@ def load_policy(path: str | Path) -> PolicyDriver:
 
     Only load files you trust: stable-baselines3 model files are pickles.
 
+    :param path: the model file ``agents/<name>.zip``
+    :return: the policy as a driver, named after the file's stem
     :raises ConfigError: one line, on a missing or foreign file, or a damaged model
     """
     p = Path(path)

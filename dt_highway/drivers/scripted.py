@@ -103,11 +103,18 @@ class IDMDriver(Driver):
         self.idm = _settings(idm, IDMParams, "IDMDriver")
 
     def params(self) -> dict[str, Any]:
-        """The IDM parameters (for the trial log)."""
+        """The IDM parameters (for the trial log).
+
+        :return: ``{"idm": the parameters by name}``
+        """
         return {"idm": self.idm.model_dump()}
 
     def act(self, perception: Perception) -> np.ndarray:
-        """IDM's acceleration behind the car ahead in the ego's lane; never changes lane."""
+        """IDM's acceleration behind the car ahead in the ego's lane; never changes lane.
+
+        :param perception: what the driver perceives now (its surroundings)
+        :return: the action ``[acceleration m/s^2, 0]``
+        """
         s = _surroundings(perception)
         lead = s.ahead[0]
         a = idm_accel(s.speed_mps, lead.gap_m, s.speed_mps - lead.speed_mps, self.idm)
@@ -129,15 +136,25 @@ class RandomDriver(Driver):
         self.rng = np.random.default_rng(0)
 
     def params(self) -> dict[str, Any]:
-        """The driver's parameters (for the trial log)."""
+        """The driver's parameters (for the trial log).
+
+        :return: the parameters by name
+        """
         return self.p.model_dump()
 
     def reset(self, seed: int) -> None:
-        """Seed the random choices."""
+        """Seed the random choices.
+
+        :param seed: seed of the random choices
+        """
         self.rng = np.random.default_rng(seed)
 
     def act(self, perception: Perception) -> np.ndarray:
-        """A uniform random acceleration, and a lane change with probability ``lane_change_prob``."""
+        """A uniform random acceleration, and a lane change with probability ``lane_change_prob``.
+
+        :param perception: what the driver perceives now (not looked at)
+        :return: the action ``[acceleration m/s^2, lane -1/0/+1]``
+        """
         a = self.rng.uniform(self.accel_min_mps2, self.accel_max_mps2)
         lane = float(self.rng.choice([-1.0, 1.0])) if self.rng.random() < self.lane_change_prob else 0.0
         return np.array([a, lane])
@@ -173,11 +190,17 @@ class HumanDriver(Driver):
         """The reaction time used at the last decision [s]"""
 
     def params(self) -> dict[str, Any]:
-        """The driver's parameters (for the trial log)."""
+        """The driver's parameters (for the trial log).
+
+        :return: the parameters by name
+        """
         return self.p.model_dump()
 
     def reset(self, seed: int) -> None:
-        """Seed the error processes and forget what the driver saw, its last lane change and any alert."""
+        """Seed the error processes and forget what the driver saw, its last lane change and any alert.
+
+        :param seed: seed of the estimation errors
+        """
         self.rng = np.random.default_rng(seed)
         self._memory.clear()
         self._w = self.rng.normal(0.0, 1.0, 2)  # stationary start of the error processes
@@ -240,7 +263,11 @@ class HumanDriver(Driver):
         return now.t_s <= self._alert_until_s, set(self._threat_until_s)
 
     def act(self, perception: Perception) -> np.ndarray:
-        """The human-like driver's acceleration and lane choice at this step, from what it perceives."""
+        """The human-like driver's acceleration and lane choice at this step, from what it perceives.
+
+        :param perception: what the driver perceives now (its surroundings and the overlay's marks)
+        :return: the action ``[acceleration m/s^2, lane -1/0/+1]``
+        """
         p = self.p
         now = _surroundings(perception)
         dt = 0.0 if self._t_prev is None else now.t_s - self._t_prev

@@ -66,6 +66,15 @@ class DrivenVehicle(ControlledVehicle):
     """The ego under a driver: commanded acceleration, lane changes, lane keeping.
 
     The acceleration command is held between decisions; speed never goes below 0.
+
+    :param road: the road the ego drives on
+    :param position: the ego's position ``(x, y)`` [m]
+    :param heading: the ego's heading [rad]
+    :param speed: the ego's speed [m/s]
+    :param target_lane_index: the lane to follow (default: the lane it is on)
+    :param target_speed: highway-env's target speed [m/s] (default: ``speed``); the pedals follow the acceleration
+        command, not this
+    :param route: highway-env's route of lanes to follow, or ``None``
     """
 
     MIN_SPEED = 0.0  # [m/s] no reversing on a highway
@@ -99,7 +108,11 @@ class DrivenVehicle(ControlledVehicle):
 
     def act(self, action: Any = None) -> None:
         """Lane keeping (or changing) by the steering controller, the commanded acceleration
-        on the pedals (called by highway-env at every simulation step)."""
+        on the pedals (called by highway-env at every simulation step).
+
+        :param action: a dict with ``acceleration`` [m/s^2] and ``lane_change`` (-1, 0, +1) to :meth:`command` first;
+            anything else is ignored (the held command drives)
+        """
         if isinstance(action, dict):
             self.command(action.get("acceleration", self.accel_command_mps2), action.get("lane_change", 0))
         if self.steering_command_rad is not None:  # the driver steers: no lane keeping
@@ -126,6 +139,7 @@ class DriverAction(ActionType):
     :param accel_max_mps2: strongest acceleration [m/s^2]
     :param steering: the second value is a steering command, not a lane request
     :param steering_max_rad: steering angle at full lock [rad]
+    :param kwargs: no other options are taken: any raises ``ValueError``
     """
 
     def __init__(self, env: DTHighwayEnv, accel_min_mps2: float = ACCEL_MIN_MPS2, accel_max_mps2: float = ACCEL_MAX_MPS2,
@@ -157,6 +171,8 @@ class DriverAction(ActionType):
     def act(self, action: Any) -> None:
         """Hold the acceleration (clipped to the limits) and request the lane change of ``[acceleration m/s^2, lane -1..1]``.
 
+        :param action: ``[acceleration m/s^2, lane -1..1]`` (with ``steering = true``: ``[acceleration m/s^2,
+            steering -1..1]``)
         :raises ValueError: one line, on an action of another shape or not finite
         """
         a = np.asarray(action, dtype=float).reshape(-1)
@@ -193,6 +209,8 @@ class DiscreteDriverAction(DriverAction):
     :param reaction_time_s: assisted: the gap keeping's reaction time to a car newly in the lane [s]
         (0: none; the delayed menu of :class:`~dt_highway.drivers.menus.AssistedMenu`)
     :param brake_limit_mps2: assisted: the gap keeping's hardest braking [m/s^2]
+    :param kwargs: passed to :class:`DriverAction` (``accel_min_mps2``, ``accel_max_mps2``; ``steering`` must stay
+        false)
     """
 
     def __init__(self, env: DTHighwayEnv, accels_mps2: Sequence[float] = DEFAULT_DISCRETE_ACCELS_MPS2,
@@ -214,11 +232,18 @@ class DiscreteDriverAction(DriverAction):
         self.choices.reset()
 
     def driver_action(self, index: int | np.integer | np.ndarray) -> np.ndarray:
-        """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index`` now."""
+        """The ``Driver`` action ``[acceleration m/s^2, lane -1..1]`` of menu entry ``index`` now.
+
+        :param index: the menu entry, an int or an array whose first element is it (as a policy returns it)
+        :return: the action ``[acceleration m/s^2, lane -1..1]``
+        """
         k = self.choices.choice(index)
         perception = perceive(self.env, self.choices.senses) if self.choices.assisted is not None else None
         return self.choices.action(k, perception)
 
     def act(self, action: Any) -> None:
-        """Carry out the menu entry ``action`` names (see :meth:`driver_action`)."""
+        """Carry out the menu entry ``action`` names (see :meth:`driver_action`).
+
+        :param action: the menu entry, an int or an array whose first element is it
+        """
         super().act(self.driver_action(action))

@@ -76,6 +76,7 @@ class AdasPipeline:
         :param fusion_rng: the fusion's random generator
         :param overlay_rng: the sham overlay's random generator
         :param road_map: the lanes (for the side a threat comes from)
+        :return: the pipeline
         """
         ov, twin = cfg.overlay, cfg.twin.intention
         settings = ov.model_copy(update={  # the threat's operating point: the twin's unless the overlay sets its own

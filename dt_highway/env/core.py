@@ -96,7 +96,12 @@ ENV_ID = "dt-highway-v0"
 
 
 def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
-    """Build the renderer described by a ``camera`` config section for a road."""
+    """Build the renderer described by a ``camera`` config section for a road.
+
+    :param cfg: the ``camera`` section (image size, field of view, mount, render settings)
+    :param scene: the road to draw
+    :return: the renderer
+    """
     m = cfg.mount
     camera = PinholeCamera(
         Intrinsics.from_fov(cfg.width_px, cfg.height_px, math.radians(cfg.hfov_deg), cfg.cx_px, cfg.cy_px),
@@ -323,6 +328,7 @@ class DTHighwayEnv(HighwayEnv):
         (``env.unwrapped.config["lanes_count"] = 2``) edits the tree the same validated way
         (:class:`~dt_highway.env.flat_config.FlatConfig`).
 
+        :param config: a (partial) tree or a whole :class:`~dt_highway.config.DTConfig`; ``None`` or empty: no change
         :raises ConfigError: on unknown keys, wrong types or out-of-range values
         """
         self.dt_config = merge(self.dt_config, config)
@@ -600,6 +606,7 @@ class DTHighwayEnv(HighwayEnv):
         evaluation, training labels and the simulated detector only, never for what a driver,
         the fusion or the overlay is given.
 
+        :return: the instance map and the ground truth per drawn vehicle
         :raises RuntimeError: if the camera is off (``camera.enabled = false``) or before ``reset``
         """
         return self._camera_frame()[1]
@@ -707,6 +714,8 @@ class DTHighwayEnv(HighwayEnv):
         (:func:`~dt_highway.env.actions.check_action`), unless the ego drives itself
         (``ego.autopilot``, ``manual_control``): a bad action changes nothing, not even the clock.
 
+        :param action: the ego's action in the action space (not used when the ego drives itself)
+        :return: gymnasium's ``(observation, reward, terminated, truncated, info)``
         :raises ValueError: one line, on an action the action space cannot hold
         """
         if not self.config["manual_control"] and not self.dt_config.ego.autopilot:

@@ -29,6 +29,7 @@ class ConfigOwner(Protocol):
     def edit_highway_config(self, values: dict[str, Any]) -> None:
         """Validate highway-env keys, apply them to the tree and refresh the flat dict.
 
+        :param values: highway-env keys and their new values
         :raises ConfigError: naming the key
         """
 
@@ -49,7 +50,10 @@ class FlatConfig(dict[str, Any]):
         self._owner = owner
 
     def refresh(self, items: Mapping[str, Any]) -> None:
-        """Show new values (the owner's tree changed), keeping this dict's identity."""
+        """Show new values (the owner's tree changed), keeping this dict's identity.
+
+        :param items: the new flat configuration
+        """
         super().clear()
         super().update(items)
 
@@ -62,7 +66,11 @@ class FlatConfig(dict[str, Any]):
         self._edit({key: value})
 
     def update(self, *args: Any, **kwargs: Any) -> None:
-        """Validate and apply the keys given, as one edit."""
+        """Validate and apply the keys given, as one edit.
+
+        :param args: at most one mapping or iterable of ``(key, value)`` pairs, as ``dict.update`` takes
+        :param kwargs: more keys and their new values
+        """
         self._edit(dict(*args, **kwargs))
 
     def __ior__(self, other: Any) -> FlatConfig:  # type: ignore[override,misc]  # dict's |= returns Self
@@ -70,7 +78,12 @@ class FlatConfig(dict[str, Any]):
         return self
 
     def setdefault(self, key: str, default: Any = None) -> Any:
-        """Set ``key`` (validated) if it has no value; :return: its value."""
+        """Set ``key`` (validated) if it has no value.
+
+        :param key: a highway-env key
+        :param default: the value to set when ``key`` has none
+        :return: the value of ``key`` afterwards
+        """
         if key not in self:
             self[key] = default
         return self[key]
@@ -82,13 +95,23 @@ class FlatConfig(dict[str, Any]):
         raise self._refuse(key)
 
     def pop(self, key: str, *default: Any) -> Any:
-        """Refused: every key has a value. :return: ``default`` for a key the configuration does not have."""
+        """Refused: every key has a value (a key the configuration does not have gives ``default``).
+
+        :param key: a highway-env key
+        :param default: at most one value, returned for a key the configuration does not have
+        :return: ``default``, for a key the configuration does not have
+        :raises ConfigError: for a key it has, or with no ``default``
+        """
         if key not in self and default:
             return default[0]
         raise self._refuse(key)
 
     def popitem(self) -> tuple[str, Any]:
-        """Refused: every key has a value."""
+        """Refused: every key has a value.
+
+        :return: nothing: it always raises
+        :raises ConfigError: always
+        """
         raise self._refuse(next(iter(self), "?"))
 
     def clear(self) -> None:

@@ -93,6 +93,9 @@ class TwinTaggedKinematics(_KinematicsPlus):
     ``twin_p_change``, the probability that it changes lane within that horizon, and
     ``twin_target_dlane``, the lane it would move to relative to its own lane in the twin's map
     (-1 left, +1 right, 0 none).
+
+    :param env: the env
+    :param kwargs: highway-env's Kinematics observation options (``vehicles_count``, ``features``, ``order``...)
     """
 
     EXTRA_FEATURES = ["twin_known", "twin_aggressive"]
@@ -110,7 +113,11 @@ class TwinTaggedKinematics(_KinematicsPlus):
             self.features = self.features + self.INTENT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
-        """The twin's columns of each row's car, from the twin view the ego received (zeros: a car the twin lacks)."""
+        """The twin's columns of each row's car, from the twin view the ego received (zeros: a car the twin lacks).
+
+        :param extra: the twin's columns, one row per observed object (the ego first), written in place
+        :param rows: the observed objects, the ego first
+        """
         view: TwinView | None = self.env.twin_view
         if view is None or not view.vehicles or len(rows) < 2:
             return
@@ -154,6 +161,7 @@ class OverlayKinematics(_KinematicsPlus):
 
     :param env: the env
     :param threat: add the threat-cue columns
+    :param kwargs: highway-env's Kinematics observation options (``vehicles_count``, ``features``, ``order``...)
     """
 
     EXTRA_FEATURES = ["marked"]
@@ -169,7 +177,11 @@ class OverlayKinematics(_KinematicsPlus):
             self.features = self.features + self.THREAT_FEATURES
 
     def fill(self, extra: np.ndarray, rows: list[RoadObject]) -> None:
-        """The overlay's columns: 1 for each row's car under a mark the driver sees (and its threat cue)."""
+        """The overlay's columns: 1 for each row's car under a mark the driver sees (and its threat cue).
+
+        :param extra: the overlay's columns, one row per observed object (the ego first), written in place
+        :param rows: the observed objects, the ego first
+        """
         adas = self.env.adas_output()
         if adas is None or not adas["overlay"]:
             return
@@ -201,6 +213,7 @@ class CameraObservation(ObservationType):
     ``env.unwrapped.camera_image().depth_m``. The image is the env's one rendering of the
     step, shared with ``info`` and the fusion (it is not rendered twice).
 
+    :param env: the env (camera on)
     :param depth: also return the depth image
     """
 

@@ -52,6 +52,7 @@ class DriverSeat:
         """What the driver perceives now.
 
         :param overlay: overlay items to see instead of this step's ADAS output (tests); ``None``: the env's
+        :return: the perception of the driver's senses (a policy's observation included)
         """
         observation = self.observer.observe() if self.observer is not None else None
         return perceive(self.env, self.request, observation, overlay)
@@ -63,6 +64,7 @@ def policy_observer(env: DTHighwayEnv, spec: ObservationSpec) -> FastKinematicOb
 
     :param env: the env (unwrapped)
     :param spec: what the policy was trained on
+    :return: the observation to give the policy (``observe()`` it each decision)
     :raises ConfigError: one line, on any mismatch
     """
     for key, trained in spec.trained.items():

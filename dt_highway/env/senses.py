@@ -34,6 +34,7 @@ def look_around(env: DTHighwayEnv, range_m: float = 150.0) -> Surroundings:
 
     :param env: the dt-highway env (unwrapped)
     :param range_m: how far the driver looks [m]
+    :return: the nearest car ahead and behind per lane (-1 left, 0 own, +1 right), and where each car in range is
     """
     ego = env.vehicle
     ex = float(ego.position[0])
@@ -132,6 +133,7 @@ def own_state(env: DTHighwayEnv) -> OwnState:
     """The ego's own state, as its driver knows it (speedometer, lane, a crash).
 
     :param env: the dt-highway env (unwrapped)
+    :return: speed [m/s], heading [rad], lane (-1 off the road), lane count and whether it crashed
     """
     ego = env.vehicle
     lane_index = ego.lane_index

@@ -105,6 +105,8 @@ def split_values(text: str) -> list[str]:
     """The values of ``--knob KEY=V1,V2,...``: split at the commas outside brackets and quotes, so a list
     or a quoted string is one value (``[1.0,2.0],[1.0,3.0]`` is two); empty ones are left out.
 
+    :param text: the part after ``KEY=``
+    :return: the values, stripped, in order
     :raises ConfigError: on unbalanced brackets or an unclosed quote
     """
     values, depth, quote, start = [], 0, "", 0
@@ -135,6 +137,10 @@ def check_values(knob: str, values: Sequence[str], scenario: str | None, overrid
     (or of a table that sets it), or a configuration no driver can drive
     (:func:`~dt_highway.conditions.check_driver_action`).
 
+    :param knob: the configuration key varied
+    :param values: its values, as ``--set`` would take them
+    :param scenario: scenario file
+    :param overrides: further ``--set`` strings, for every cell
     :raises ConfigError: one line
     """
     if not values:
@@ -230,6 +236,9 @@ def check_table_kept(out: Path, knob: str, drivers: Sequence[str], values: Seque
 def knob_value(knob: str, text: str) -> str:
     """A ``--knob`` value as the configuration reads it, to compare (``2`` and ``2.0`` the same number).
 
+    :param knob: the configuration key varied
+    :param text: the value, as typed
+    :return: the ``repr`` of the value read (a number as a float)
     :raises ConfigError: on a value ``--set`` cannot parse
     """
     value = override_value(f"{knob}={text}", knob, "--knob")
@@ -251,7 +260,12 @@ TABLE_COLUMNS = {
 
 
 def calibration_table(cells: Sequence[CalibrationCell], knob: str) -> pd.DataFrame:
-    """The cells as a table: one row per (driver, value), the figures of :data:`TABLE_COLUMNS`."""
+    """The cells as a table: one row per (driver, value), the figures of :data:`TABLE_COLUMNS`.
+
+    :param cells: the cells (:func:`calibrate`)
+    :param knob: the configuration key varied (a column's name)
+    :return: columns ``driver``, the knob, the headings of the figures there, ``trials``
+    """
     rows = []
     for c in cells:
         row: dict[str, Any] = {"driver": c.driver, knob: c.value}
@@ -265,7 +279,11 @@ def calibration_table(cells: Sequence[CalibrationCell], knob: str) -> pd.DataFra
 
 def markdown(table: pd.DataFrame) -> str:
     """A table as GitHub markdown, numbers to two decimals (pandas' ``to_markdown`` needs tabulate,
-    not a dependency: six lines here do it)."""
+    not a dependency: six lines here do it).
+
+    :param table: the table (e.g. :func:`calibration_table`)
+    :return: the markdown: a heading line, a rule, one line per row
+    """
 
     def cell(v: Any) -> str:
         if isinstance(v, float | np.floating):

@@ -39,7 +39,9 @@ search range) [m]"""
 
 
 def chase_dataset(episodes: list[Episode]) -> tuple[np.ndarray, np.ndarray]:
-    """:return: the inputs ``(M, F)`` and labels ``(M,)`` (bool) of every recorded chase sample"""
+    """:param episodes: episodes recorded with ``chase=True``
+    :return: the inputs ``(M, F)`` and labels ``(M,)`` (bool) of every recorded chase sample
+    """
     xs = [inputs.x for ep in episodes for inputs, _ in (ep.chase or []) if len(inputs)]
     ys = [y for ep in episodes for inputs, y in (ep.chase or []) if len(inputs)]
     if not xs:
@@ -52,6 +54,13 @@ def fit_chase(x: np.ndarray, y: np.ndarray, epochs: int = 12, batch: int = 512, 
               ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], list[float]]:
     """Fit the detector's perceptron on the logistic loss.
 
+    :param x: the inputs ``(M, F)``
+    :param y: the labels ``(M,)`` (bool: chasing)
+    :param epochs: passes over the data
+    :param batch: samples per optimiser step
+    :param lr: Adam's learning rate
+    :param seed: seeds torch's initial weights and the batches' order
+    :param hidden: units in each of the two hidden layers
     :param progress: called with 1 after each epoch
     :return: input mean, input scale, layers ``(W, b)`` (``W`` as ``(in, out)``) and the loss of each epoch
     """
@@ -80,7 +89,9 @@ def fit_chase(x: np.ndarray, y: np.ndarray, epochs: int = 12, batch: int = 512, 
 
 
 def near_ego(x: np.ndarray) -> np.ndarray:
-    """:return: which rows of chase inputs are near the ego (:data:`NEAR_M`, its lane or a neighbouring one)"""
+    """:param x: chase inputs ``(M, F)``, columns of :data:`~dt_highway.twin.chase.CHASE_FEATURES`
+    :return: which rows of chase inputs are near the ego (:data:`NEAR_M`, its lane or a neighbouring one)
+    """
     dx = x[:, CHASE_FEATURES.index("dx_0s")] * 50.0
     far = x[:, CHASE_FEATURES.index("ego_far_lane")] > 0
     return ~far & (np.abs(dx) < NEAR_M)
@@ -97,7 +108,11 @@ def _scores(p: np.ndarray, y: np.ndarray) -> dict[str, Any]:
 
 
 def score_chase(detector: ChaseDetector, x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    """:return: AUC, precision and recall of ``detector`` on labelled inputs, for all and for those near the ego"""
+    """:param detector: the detector scored
+    :param x: chase inputs ``(M, F)``
+    :param y: their labels ``(M,)`` (bool: chasing)
+    :return: AUC, precision and recall of ``detector`` on labelled inputs, for all and for those near the ego
+    """
     p = detector.predict(ChaseInputs(np.arange(len(x)), 0.0, x))
     near = near_ego(x)
     return {"all": _scores(p, y), "near_ego": _scores(p[near], y[near])}

@@ -26,6 +26,7 @@ def draw_boxes(rgb: np.ndarray, truth: CameraTruth) -> np.ndarray:
 
     :param rgb: the image to draw on
     :param truth: its ground truth
+    :return: the copy, boxes drawn
     """
     out = np.ascontiguousarray(rgb).copy()
     for t in truth.vehicles.values():
@@ -46,7 +47,11 @@ FRAME_FILE = re.compile(r"(rgb|depth|instance|boxes|overlay)_\d{4,}\.png|frame_\
 
 
 def frame_files(folder: Path) -> list[Path]:
-    """The frames' files of :func:`record_frames` ``folder`` holds (none if it is no folder)."""
+    """The frames' files of :func:`record_frames` ``folder`` holds (none if it is no folder).
+
+    :param folder: the folder
+    :return: the files, sorted by name
+    """
     return sorted(p for p in folder.iterdir() if FRAME_FILE.fullmatch(p.name)) if folder.is_dir() else []
 
 
@@ -57,6 +62,10 @@ def write_frame(image: CameraImage, truth: CameraTruth, out: Path, index: int, m
 
     :param image: the camera image
     :param truth: its ground truth
+    :param out: the folder written to
+    :param index: the frame's number (in the file names, 4 digits or more)
+    :param max_range_m: the depth shown darkest blue in the depth picture [m]
+    :param raw: also write the ``.npz``
     :return: the paths written
     """
     stem = f"{index:04d}"

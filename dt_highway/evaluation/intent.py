@@ -312,7 +312,10 @@ def _chase_sample(env: DTHighwayEnv) -> tuple[ChaseInputs, np.ndarray]:
 
 
 class RecordingEnv(DTHighwayEnv):
-    """The env, recording an :class:`Episode` at every simulation step while ``recorder`` is set."""
+    """The env, recording an :class:`Episode` at every simulation step while ``recorder`` is set.
+
+    :param config: the env configuration, as a dict (``None``: the env's defaults)
+    """
 
     def __init__(self, config: dict | None = None) -> None:
         self.recorder: _Recorder | None = None
@@ -334,7 +337,9 @@ def eval_config(config: DTConfig, driven: bool = False) -> DTConfig:
     trial scenario's start) would never show the model, nor the evaluation, a car beside the ego in
     the middle lane.
 
+    :param config: resolved configuration
     :param driven: a driver model drives the ego (autopilot off, the drivers' action type)
+    :return: the configuration to record with
     :raises ConfigError: without the twin, its intention model or typed traffic
     """
     needs = "twin-eval --intent, train-intent and train-chase need"  # the commands that record these episodes
@@ -461,7 +466,10 @@ class Truth:
         self.next_lane = np.where(ok, self.lane[np.minimum(nxt, n - 1)], -1)
 
     def rows_at(self, vehicle_ids: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-        """:return: the truth row of each ``(vehicle, time)`` (-1 when the vehicle was not on the road then)"""
+        """:param vehicle_ids: the vehicles ``(N,)``
+        :param t_s: the times, one per vehicle ``(N,)`` [s]
+        :return: the truth row of each ``(vehicle, time)`` (-1 when the vehicle was not on the road then)
+        """
         q = vehicle_ids.astype(np.int64) * self.KEY + t_s
         i = np.searchsorted(self.key, q - self.dt_s / 2)
         if len(self.key) == 0:
@@ -473,6 +481,9 @@ class Truth:
     def labels(self, rows: np.ndarray, t_s: np.ndarray, horizon_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lane-change labels of truth rows at times ``t_s``.
 
+        :param rows: truth rows ``(N,)`` (:meth:`rows_at`; -1: not found)
+        :param t_s: the times of the estimates ``(N,)`` [s]
+        :param horizon_s: the horizon ``H`` [s]
         :return: ``known`` (not censored, row found), ``changed`` (within ``horizon_s``) and the new lane (-1 if none)
         """
         found = rows >= 0
@@ -482,7 +493,11 @@ class Truth:
         return known, changed, np.where(changed, self.next_lane[r], -1)
 
     def overlaps_between(self, vehicle_id: int, t0_s: float, t1_s: float) -> bool:
-        """:return: whether the vehicle's body overlapped the ego's lane at some step in ``[t0_s, t1_s]``"""
+        """:param vehicle_id: the vehicle
+        :param t0_s: start of the interval [s]
+        :param t1_s: end of the interval [s]
+        :return: whether the vehicle's body overlapped the ego's lane at some step in ``[t0_s, t1_s]``
+        """
         lo = np.searchsorted(self.key, vehicle_id * self.KEY + t0_s - 1e-9)
         hi = np.searchsorted(self.key, vehicle_id * self.KEY + t1_s + 1e-9)
         return bool(self.overlap[lo:hi].any())
@@ -490,7 +505,12 @@ class Truth:
 
 # ----------------------------------------------------------------------------- scoring
 def predictions(model: IntentionModel, tables: list[tuple[float, IntentionInputs]]) -> list[np.ndarray]:
-    """The model's ``(N, H, 3)`` probabilities for every recorded estimate (one batched call)."""
+    """The model's ``(N, H, 3)`` probabilities for every recorded estimate (one batched call).
+
+    :param model: the intention model
+    :param tables: the recorded estimates' ``(t_s, inputs)`` (an :attr:`Episode.tables`)
+    :return: one ``(N, H, 3)`` array per table
+    """
     if not tables:
         return []
     cat = IntentionInputs(
@@ -523,7 +543,16 @@ class _Pooled:
 
 def vehicle_scores(episodes: Sequence[Episode], truths: Sequence[Truth], probs: Sequence[list[np.ndarray]],
                    horizons_s: Sequence[float], threshold: float) -> list[dict[str, Any]]:
-    """Per horizon: ROC AUC, precision and recall at ``threshold``, target-lane accuracy (module docstring)."""
+    """Per horizon: ROC AUC, precision and recall at ``threshold``, target-lane accuracy (module docstring).
+
+    :param episodes: the recorded episodes (:func:`record_episodes`)
+    :param truths: their truths, one :class:`Truth` per episode
+    :param probs: the model's estimates: per episode, one ``(N, H, 3)`` array per recorded table (:func:`predictions`)
+    :param horizons_s: the horizons of the estimates' ``H`` axis [s]
+    :param threshold: the operating threshold on ``p_change`` [-]
+    :return: one dict per horizon: ``horizon_s``, ``auc``, ``precision``, ``recall``, ``target_lane_accuracy``,
+        ``n_samples``, ``n_positive`` (NaN where a figure has no samples)
+    """
     out = []
     for k, h in enumerate(horizons_s):
         pool = _Pooled()
@@ -601,7 +630,13 @@ class ViewSamples:
 
 
 def view_samples(ep: Episode, probs: list[np.ndarray], k: int) -> ViewSamples:
-    """The episode's views (from ``t = 0``) with the model's estimates at horizon index ``k``."""
+    """The episode's views (from ``t = 0``) with the model's estimates at horizon index ``k``.
+
+    :param ep: the episode
+    :param probs: the model's ``(N, H, 3)`` estimates, one per recorded table
+    :param k: index of the horizon in ``probs``
+    :return: the samples
+    """
     which = _view_tables(ep)
     parts: list[tuple[np.ndarray, ...]] = []
     for j, (t_recv, _, ids, dx, ego_lane) in enumerate(ep.views):
@@ -636,7 +671,11 @@ def _warns(samples: ViewSamples, threshold: float) -> np.ndarray:
 
 
 def counted_cut_ins(ep: Episode) -> list[dict[str, Any]]:
-    """The episode's cut-ins in front of the ego that are scored: bumper gap under :data:`CUT_IN_GAP_M`."""
+    """The episode's cut-ins in front of the ego that are scored: bumper gap under :data:`CUT_IN_GAP_M`.
+
+    :param ep: the episode
+    :return: those cut-ins (dicts of :attr:`Episode.cut_ins`)
+    """
     return [c for c in ep.cut_ins if c["gap_m"] < CUT_IN_GAP_M]
 
 
@@ -644,8 +683,13 @@ def runs_at(samples: ViewSamples, truth: Truth, cut_ins: Sequence[dict[str, Any]
             horizon_s: float) -> list[Warning]:
     """The warning runs at one threshold (module docstring).
 
+    :param samples: the episode's view samples at the horizon (:func:`view_samples`)
+    :param truth: the episode's truth (for :attr:`Warning.entered`)
     :param cut_ins: the episode's counted cut-ins (:func:`counted_cut_ins`; ``t_s``, ``vehicle_id``), which make
         a run true
+    :param threshold: the threshold on ``p_change`` [-]
+    :param horizon_s: the horizon ``H`` [s]
+    :return: the runs, by car and start
     """
     cut_at: dict[int, list[float]] = {}
     for c in cut_ins:
@@ -677,12 +721,27 @@ def _warns_of(start_s: float, end_s: float, t_s: float, horizon_s: float) -> boo
 
 def warning_runs(ep: Episode, truth: Truth, probs: list[np.ndarray], k: int, threshold: float,
                  horizon_s: float) -> list[Warning]:
-    """The warning runs the ego would have seen (module docstring), from the episode's views."""
+    """The warning runs the ego would have seen (module docstring), from the episode's views.
+
+    :param ep: the episode
+    :param truth: its truth (for :attr:`Warning.entered`)
+    :param probs: the model's ``(N, H, 3)`` estimates, one per recorded table
+    :param k: index of the horizon in ``probs``
+    :param threshold: the threshold on ``p_change`` [-]
+    :param horizon_s: the horizon of index ``k`` [s]
+    :return: the runs, by car and start
+    """
     return runs_at(view_samples(ep, probs, k), truth, counted_cut_ins(ep), threshold, horizon_s)
 
 
 def cut_in_leads(cut_ins: list[dict[str, Any]], runs: list[Warning], horizon_s: float) -> list[float]:
-    """Lead time of each cut-in [s] (NaN: not warned before its first overlap)."""
+    """Lead time of each cut-in [s] (NaN: not warned before its first overlap).
+
+    :param cut_ins: the cut-ins (``t_s``, ``vehicle_id``)
+    :param runs: the warning runs (:func:`runs_at`)
+    :param horizon_s: the horizon ``H`` [s]
+    :return: one lead time per cut-in, in order [s]
+    """
     leads = []
     for c in cut_ins:
         t_o, vid = c["t_s"], c["vehicle_id"]
@@ -759,8 +818,16 @@ def cut_in_scores(episodes: Sequence[Episode], truths: Sequence[Truth], samples:
     """Precision of the warning runs, recall and lead times of the cut-ins at one threshold and horizon, by kind
     (``by_maneuver``) and by bumper gap at the overlap (``by_gap_m``, bands of :data:`GAP_BANDS_M`).
 
+    :param episodes: the recorded episodes (:func:`record_episodes`)
+    :param truths: their truths, one :class:`Truth` per episode
+    :param samples: each episode's view samples at the horizon (:func:`view_samples`)
+    :param threshold: the threshold on ``p_change`` [-]
+    :param horizon_s: the horizon ``H`` [s]
     :param intervals: also give ``intervals``: the 95 % intervals of precision, recall, median lead and share
         warned >= 1.5 s ahead from a bootstrap over the episodes (:func:`episode_intervals`)
+    :return: ``threshold``, ``precision``, ``precision_lane_entry``, ``recall``, ``median_lead_s``, ``n_cut_ins``,
+        ``n_warnings``, ``false_warnings_per_min``, ``warning_time_share``, the shares warned ahead, ``late_reasons``,
+        ``by_maneuver``, ``by_gap_m``, ``median_decided_before_s`` (and ``intervals``)
     """
     per_episode: list[tuple[np.ndarray, int, int]] = []  # each episode's cut-ins' leads, its true runs, its runs
     kinds: list[str] = []
@@ -880,14 +947,30 @@ def _resampled_medians(per_episode: Sequence[tuple[np.ndarray, int, int]], count
 
 
 def score_model(episodes: Sequence[Episode], model: IntentionModel, intention: IntentionConfig) -> dict[str, Any]:
-    """All scores of one model on recorded episodes (see the module docstring)."""
+    """All scores of one model on recorded episodes (see the module docstring).
+
+    :param episodes: the recorded episodes (:func:`record_episodes`)
+    :param model: the model scored
+    :param intention: the intention settings (their ``threshold`` is the operating one)
+    :return: as :func:`score_probs`
+    """
     probs = [predictions(model, ep.tables) for ep in episodes]
     return score_probs(episodes, probs, tuple(model.horizons_s), intention)
 
 
 def score_probs(episodes: Sequence[Episode], probs: Sequence[list[np.ndarray]], horizons: tuple[float, ...],
                 intention: IntentionConfig) -> dict[str, Any]:
-    """All scores of estimates ``probs`` (per episode, one ``(N, H, 3)`` array per recorded table)."""
+    """All scores of estimates ``probs`` (per episode, one ``(N, H, 3)`` array per recorded table).
+
+    :param episodes: the recorded episodes (:func:`record_episodes`)
+    :param probs: the model's estimates: per episode, one ``(N, H, 3)`` array per recorded table (:func:`predictions`)
+    :param horizons: the horizons of the estimates' ``H`` axis [s]
+    :param intention: the intention settings (their ``threshold`` is the operating one)
+    :return: ``per_horizon`` (:func:`vehicle_scores`) and ``cut_ins``: per horizon, the :func:`cut_in_scores` at
+        the operating threshold (``at_threshold``), at the best recall with precision >= :data:`MIN_PRECISION`
+        (``best``, ``recall_at_precision``), at the longest median lead (``longest_lead``) and the grid's
+        ``curve``
+    """
     truths = [Truth(ep.truth, ep.dt_s) for ep in episodes]
     per_horizon = vehicle_scores(episodes, truths, probs, horizons, intention.threshold)
     cut_ins = []
@@ -982,7 +1065,12 @@ def _at_horizon(scores: dict[str, Any], horizon_s: float) -> dict[str, Any]:
 def headline(result: dict[str, Any], model: str | None = None) -> dict[str, Any]:
     """The numbers of one model at the operating horizon: per-horizon AUCs, cut-in recall at precision
     >= 0.80, its median lead, and precision / recall / lead / share of cut-ins warned >= 1.5 s ahead at the
-    operating threshold."""
+    operating threshold.
+
+    :param result: a result of :func:`evaluate_intent`
+    :param model: the model's name (``None``: the configured one)
+    :return: the numbers by name
+    """
     name = model or result["configured_model"]
     s = result["models"][name]
     h = result["operating"]["horizon_s"]
@@ -1012,6 +1100,11 @@ def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
     """The uplink sweep (``SWEEP`` one at a time, then the degraded uplink,
     :data:`~dt_highway.evaluation.twin.UPLINK_STRESS`) of the configured model.
 
+    :param config: resolved configuration
+    :param episodes: episodes per setting
+    :param seed: seed of each setting's first reset
+    :param progress: called with policy steps simulated
+    :param driver: the ego's driver (see :func:`record_episodes`); ``None``: the autopilot
     :return: one row per setting: ``parameter``, ``value`` and the :func:`headline` numbers
     """
     rows = []
@@ -1022,7 +1115,12 @@ def run_intent_sweep(config: DTConfig, episodes: int, seed: int,
 
 
 def sweep_steps(config: DTConfig, episodes: int) -> int:
-    """Policy steps :func:`run_intent_sweep` simulates (for its progress bar)."""
+    """Policy steps :func:`run_intent_sweep` simulates (for its progress bar).
+
+    :param config: resolved configuration
+    :param episodes: episodes per setting
+    :return: the policy steps
+    """
     n = sum(len(values) for _, _, values in SWEEP) + 1
     return n * episodes * episode_steps(config)
 
@@ -1032,7 +1130,11 @@ def _f(x: float, digits: int = 3) -> str:
 
 
 def format_intent(result: dict[str, Any]) -> list[str]:
-    """The lines ``twin-eval --intent`` prints: one block per model (the configured one first)."""
+    """The lines ``twin-eval --intent`` prints: one block per model (the configured one first).
+
+    :param result: a result of :func:`evaluate_intent`
+    :return: the lines
+    """
     op = result["operating"]
     driver = result.get("driver", "autopilot")
     by = "" if driver == "autopilot" else f", the ego driven by {driver}"
@@ -1172,7 +1274,11 @@ def _by_gap_and_intervals(scores: dict[str, Any], horizon_s: float) -> list[str]
 
 
 def format_sweep(rows: list[dict[str, Any]]) -> list[str]:
-    """The lines ``twin-eval --intent --sweep`` prints: one per uplink setting."""
+    """The lines ``twin-eval --intent --sweep`` prints: one per uplink setting.
+
+    :param rows: the rows of :func:`run_intent_sweep`
+    :return: a heading line, then one line per row
+    """
     lines = [("parameter            value       AUC@1s AUC@2s AUC@3s  recall@P>=0.80  thr    median lead [s]  "
               "95 % interval [s]  longest lead @P>=0.80,R>=0.90 [s]")]
     for r in rows:

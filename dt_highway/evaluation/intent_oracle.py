@@ -186,8 +186,11 @@ class OpenAttempt:
 
     @classmethod
     def of(cls, policy: CutInPolicy, clock_s: float) -> OpenAttempt | None:
-        """:return: the attempt of ``policy`` at its driver's ``clock_s`` [s] (``None``: no attempt open, no brake
-        under way, no lane kept: nothing that a fresh draw would not give)"""
+        """:param policy: the driver's cut-in policy in the simulator
+        :param clock_s: its driver's clock now [s]
+        :return: the attempt of ``policy`` at its driver's ``clock_s`` [s] (``None``: no attempt open, no brake
+        under way, no lane kept: nothing that a fresh draw would not give)
+        """
         is_open = clock_s >= policy.next_attempt_s
         if not is_open and policy.brake is None and policy.committed_until_s <= clock_s:
             return None
@@ -199,7 +202,10 @@ class OpenAttempt:
 
     def apply(self, policy: CutInPolicy) -> None:
         """Put this attempt into a copy's fresh ``policy`` (its driver's clock at 0, its next attempt drawn: kept,
-        style and all, when none is open)."""
+        style and all, when none is open).
+
+        :param policy: the copy's fresh cut-in policy (changed in place)
+        """
         if self.open_for_s is not None:
             policy.dangerous = self.dangerous
             policy.next_attempt_s = -self.open_for_s
@@ -218,7 +224,10 @@ class RevealedPicture(TwinPicture):
 
     @classmethod
     def of(cls, picture: TwinPicture, attempts: Mapping[int, OpenAttempt]) -> RevealedPicture:
-        """:return: ``picture`` with ``attempts``"""
+        """:param picture: the twin's picture
+        :param attempts: per vehicle id, its driver's open attempt
+        :return: ``picture`` with ``attempts``
+        """
         return cls(**{f.name: getattr(picture, f.name) for f in fields(picture)}, attempts=attempts)
 
 
@@ -300,7 +309,16 @@ def rollout_changes(road: Road, vehicle_ids: np.ndarray, horizon_s: float, dt_s:
 def first_changes(make_copy: Callable[[np.random.Generator], Road], vehicle_ids: np.ndarray, horizon_s: float,
                   dt_s: float, rollouts: int, rng: np.random.Generator) -> Futures:
     """Simulate ``rollouts`` copies made by ``make_copy`` (each given its own generator, drawn from ``rng``) for
-    ``horizon_s`` and note each vehicle's first lane change (see :func:`rollout_changes`)."""
+    ``horizon_s`` and note each vehicle's first lane change (see :func:`rollout_changes`).
+
+    :param make_copy: makes one copy of the road from its generator
+    :param vehicle_ids: the vehicles to follow
+    :param horizon_s: how long to simulate [s]
+    :param dt_s: the simulation step [s]
+    :param rollouts: simulated futures
+    :param rng: draws the copies' generators
+    :return: per vehicle, the ``(time from now [s], new lane)`` of every copy in which it changed lane
+    """
     wanted = set(vehicle_ids.tolist())
     out: Futures = {vid: [] for vid in wanted}
     steps = int(math.ceil(horizon_s / dt_s - 1e-9))
@@ -333,6 +351,7 @@ def intents_from_futures(futures: Futures, rollouts: int, vehicle_ids: np.ndarra
     :param lanes: each one's lane by the estimate, ``(N,)`` (left = a lower lane id)
     :param horizons_s: the horizons [s]
     :param elapsed_s: time from the simulation of the futures to the estimate [s]
+    :return: the probabilities ``(N, len(horizons_s), 3)``: stay, left, right
     """
     probs = np.zeros((len(vehicle_ids), len(horizons_s), 3))
     probs[:, :, 0] = 1.0
@@ -453,9 +472,16 @@ class Oracle:
 
     def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray,
                  picture: TwinPicture | Callable[[], TwinPicture] | None = None) -> np.ndarray:
-        """:return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]
+        """:param road: the simulator's road now (left untouched)
+        :param t_s: simulation time now [s]
+        :param dt_s: the simulation step [s]
+        :param vehicle_ids: the estimate's vehicles, ``(N,)``
+        :param lanes: each one's lane by the estimate, ``(N,)``
+        :param picture: the twin's picture now, or a function that makes it (needed when the copies start from it)
+        :return: the ``(N, H, 3)`` probabilities for ``vehicle_ids`` (in ``lanes``) at simulation time ``t_s`` [s]
         (starting from the twin's ``picture`` of now, when the settings say so: a vehicle that is not in the last
-        run's picture stays; a function that makes the picture is called only when the oracle runs)"""
+        run's picture stays; a function that makes the picture is called only when the oracle runs)
+        """
         if self.settings.start == "picture":
             if picture is None:
                 raise ValueError("this oracle starts from the twin's picture: pass it")

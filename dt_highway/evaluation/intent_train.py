@@ -47,6 +47,8 @@ EGO_RANGE_M = 80.0
 def dataset(episodes: list[Episode], horizons_s: tuple[float, ...] = TRAINED_HORIZONS_S) -> dict[str, np.ndarray]:
     """Inputs and labels of the recorded estimates.
 
+    :param episodes: episodes recorded with their pre-roll (:func:`~dt_highway.evaluation.intent.record_episodes`)
+    :param horizons_s: the horizons labelled [s]
     :return: ``x`` ``(M, 2, F)`` float32 (own inputs repeated beside each side's), ``side_ok`` ``(M, 2)``,
         ``y`` ``(M, H)`` int8: 0 stay, 1 left, 2 right, -1 left out
     """
@@ -163,7 +165,9 @@ def train_epochs(opt: torch.optim.Optimizer, n_samples: int, epochs: int, batch:
 
 
 def numpy_layers(net: torch.nn.Sequential) -> Layers:
-    """:return: the ``(W, b)`` of each linear layer of a torch ``Sequential``, as float64 numpy (``W`` as ``(in, out)``)"""
+    """:param net: the network
+    :return: the ``(W, b)`` of each linear layer of a torch ``Sequential``, as float64 numpy (``W`` as ``(in, out)``)
+    """
     import torch  # lazy: training only, as in fit
 
     return [(m.weight.detach().numpy().T.astype(np.float64).copy(), m.bias.detach().numpy().astype(np.float64).copy())
@@ -175,6 +179,7 @@ def sample_weights(x: np.ndarray) -> np.ndarray:
     lane or a neighbouring one (the cut-ins a driver is warned of are among these few), else 1.
 
     :param x: ``(M, 2, F)`` inputs of :func:`dataset`
+    :return: one weight per sample ``(M,)``
     """
     near_same = (x[:, 0, OWN_FEATURES.index("ego_same_lane")] > 0) & (np.abs(x[:, 0, OWN_FEATURES.index("ego_dx_same")]) * 50
                                                                       < EGO_RANGE_M)

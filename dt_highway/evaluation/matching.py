@@ -85,6 +85,11 @@ class MatchingResult:
 
         Subsets: ``all``, ``tricky``, ``ordinary`` (not tricky), ``ambiguous`` (the anchor as
         received lies inside two or more detected boxes: where Algorithm 2 uses depth).
+
+        :param method: the method
+        :param threshold: the IoU threshold [-]
+        :param subset: ``all``, ``tricky``, ``ordinary`` or ``ambiguous``
+        :return: the share (NaN: no frame in the subset)
         """
         if subset == "ambiguous":
             rows = [r for r in self.rows if r["ambiguous"]]
@@ -95,14 +100,22 @@ class MatchingResult:
         return float(np.mean([r[f"iou_{method}"] >= threshold for r in rows]))
 
     def curve(self) -> list[dict[str, Any]]:
-        """Accuracy against IoU threshold for each method and subset (``curve.csv`` rows)."""
+        """Accuracy against IoU threshold for each method and subset (``curve.csv`` rows).
+
+        :return: one row per method, subset and threshold of :data:`THRESHOLDS`: ``method``, ``subset``,
+            ``iou_threshold``, ``accuracy``
+        """
         return [
             {"method": m, "subset": sub, "iou_threshold": float(t), "accuracy": self.accuracy(m, float(t), sub)}
             for m in self.methods for sub in ("all", "tricky", "ordinary", "ambiguous") for t in THRESHOLDS
         ]
 
     def summary(self) -> dict[str, Any]:
-        """The ``summary.json`` content."""
+        """The ``summary.json`` content.
+
+        :return: per method the accuracies at IoU 0.5 and 0.7 (and by subset at 0.7), ``n_frames``,
+            ``n_tricky``, ``n_ambiguous`` and ``settings``
+        """
         n_tricky = sum(r["tricky"] for r in self.rows)
         return {
             "methods": {
@@ -286,6 +299,8 @@ SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
 def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
     """Write ``curve.csv``, ``summary.json``, ``frames.csv`` and ``curve.png``.
 
+    :param result: the benchmark's outcomes (:func:`run_matching`)
+    :param out: the output directory (created)
     :return: the paths written
     """
     out.mkdir(parents=True, exist_ok=True)
@@ -306,7 +321,12 @@ def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
 
 
 def plot_curve(curve: list[dict[str, Any]], path: Path, title: str = "") -> None:
-    """Accuracy against IoU threshold, one line per method (solid: all frames, dashed: tricky), like Fig. 6."""
+    """Accuracy against IoU threshold, one line per method (solid: all frames, dashed: tricky), like Fig. 6.
+
+    :param curve: the rows of :meth:`MatchingResult.curve`
+    :param path: the image file to write
+    :param title: the plot's title
+    """
     matplotlib.use("Agg")
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=110)
     methods = list(dict.fromkeys(r["method"] for r in curve))
@@ -347,6 +367,12 @@ def run_sweep(
     """The uplink sweep: GNSS noise, latency and update rate one at a time, plus the
     degraded uplink of the targets (300 ms at 1 Hz).
 
+    :param config: resolved configuration (scenario, uplink, detector, fusion settings)
+    :param frames: evaluation frames per setting [-]
+    :param seed: seed of each setting's run (as :func:`run_matching`)
+    :param methods: the methods to run
+    :param settings: target choice
+    :param progress: called with 1 per evaluation frame
     :return: one row per (setting, method): ``parameter``, ``value``, ``method``,
         ``acc_iou50``, ``acc_iou70``, ``acc_iou70_tricky``, ``n_frames``, ``n_tricky``
     """
@@ -365,6 +391,8 @@ def run_sweep(
 def write_sweep(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """Write ``sweep.csv``, ``sweep.json`` and ``sweep.png`` (accuracy at IoU 0.7 per setting).
 
+    :param rows: the rows of :func:`run_sweep`
+    :param out: the output directory (created)
     :return: the paths written
     """
     matplotlib.use("Agg")

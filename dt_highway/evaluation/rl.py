@@ -40,7 +40,9 @@ def run_episode(driver: Driver, env: gym.Env, seed: int) -> dict[str, Any]:
     """One episode of ``driver`` in ``env`` from ``reset(seed)``; the driver acts on what its
     seat perceives (:class:`~dt_highway.env.seat.DriverSeat`), ``info`` is for the metrics.
 
+    :param driver: the driver
     :param env: a ``dt-highway-v0`` env, wrapped (``gym.make``) or not
+    :param seed: the seed of the env's reset and of the driver's
     :return: ``return``, ``steps``, ``collision``, the trial metrics (units in the names),
         ``collision_label`` (the first collision's kind, empty without a crash), ``cut_in_ttcs_s`` (each
         cut-in's minimum TTC, capped at ``safety.TTC_CAP_S``) and ``cut_in_ttc_median_s``, their median (NaN without any)
@@ -232,6 +234,8 @@ def parse_rows(text: str, driver_dir: str | Path = "agents") -> list[Row]:
 def row_driver(row: Row) -> Driver:
     """Load a row's driver and apply its ablation.
 
+    :param row: the row
+    :return: the driver, with the ablation applied
     :raises ConfigError: one line, on a bad driver file or an ablation the driver cannot take
     """
     driver = load_driver(row.driver)
@@ -283,6 +287,7 @@ def comparisons(rows: list[Row], aware: dict[str, bool], policy: dict[str, bool]
     (no ablation, an ADAS condition) and ``a``: the same policy in that condition's sham, the same
     policy with zeroed marks, and every row of a policy without marks (the baseline policy).
 
+    :param rows: the rows (:func:`parse_rows`)
     :param aware: per row label: its driver is a policy that sees the overlay's marks
     :param policy: per row label: its driver is a trained policy
     :return: ``kind``, ``a``, ``b`` per comparison
@@ -306,6 +311,8 @@ def paired_by_seed(episodes: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
     (:func:`dt_highway.metrics.stats.paired_tests`: Wilcoxon signed-rank, paired t, Cohen's d_z), and the collisions.
 
     :param episodes: one row per episode with ``row``, ``seed`` and :data:`COMPARE_METRICS`
+    :param a: the reference row's label
+    :param b: the label of the row tested against it
     :return: ``a``, ``b``, ``tests`` per metric, ``collisions`` (``a``, ``b``, ``only_a``, ``only_b``, ``both``)
     """
     frame = episodes[episodes["row"].isin([a, b])].copy()
@@ -323,7 +330,12 @@ def paired_by_seed(episodes: pd.DataFrame, a: str, b: str) -> dict[str, Any]:
 
 def summarise_row(frame: pd.DataFrame) -> dict[str, Any]:
     """One row's figures: per metric n, mean, SD and 95 % CI (:func:`dt_highway.metrics.stats.describe`),
-    the collisions and their kinds, and the median over all its cut-ins of their minimum TTC."""
+    the collisions and their kinds, and the median over all its cut-ins of their minimum TTC.
+
+    :param frame: the row's episodes, one per line (the dicts of :func:`run_episode`)
+    :return: ``episodes``, ``collisions``, ``collision_kinds``, ``cut_ins``, ``cut_in_ttc_pooled_median_s`` and,
+        per metric of :data:`COMPARE_METRICS`, its :func:`~dt_highway.metrics.stats.describe`
+    """
     crashed = frame[frame["collision"].astype(bool)]
     kinds = Counter(str(k) or "unknown" for k in crashed["collision_label"])
     pooled = [v for vs in frame["cut_in_ttcs_s"] for v in vs]
@@ -484,7 +496,11 @@ EPISODE_COLUMNS = ("row", "driver", "condition", "ablation", "seed", "return", "
 
 
 def compare_paths(out: str | Path) -> list[Path]:
-    """The files :func:`write_compare` writes into the folder ``out``."""
+    """The files :func:`write_compare` writes into the folder ``out``.
+
+    :param out: the folder
+    :return: ``compare.json``, ``compare.md`` and ``episodes.csv`` in it
+    """
     return [Path(out) / name for name in ("compare.json", "compare.md", "episodes.csv")]
 
 
@@ -492,6 +508,8 @@ def write_compare(result: dict[str, Any], out: str | Path) -> list[Path]:
     """Write ``compare.json`` (everything), ``compare.md`` (:func:`markdown_table`) and ``episodes.csv``
     (one line per episode; ``cut_in_ttcs_s`` joined by ``;``) into the folder ``out``.
 
+    :param result: a result of :func:`rl_compare`
+    :param out: the folder (created)
     :return: the files written
     """
     folder = Path(out)

@@ -81,6 +81,7 @@ def fit(features: np.ndarray, labels: np.ndarray, l2: float = 1.0) -> EvidenceMo
     :param features: ``(N, F)``
     :param labels: ``(N,)`` booleans, both classes present
     :param l2: penalty on the squared weights (the intercept is free), >= 0
+    :return: the fitted model
     :raises ValueError: one line, when a class is missing
     """
     y = labels.astype(float)
@@ -105,6 +106,12 @@ def train_tagger(config: DTConfig, seeds: Sequence[int], episodes: int, out: str
                  progress: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Collect, fit, write the weights to ``out``.
 
+    :param config: resolved configuration (as :func:`collect` takes it)
+    :param seeds: training seeds (:func:`collect`)
+    :param episodes: episodes per seed, >= 1
+    :param out: the weights file to write
+    :param l2: penalty on the squared weights (:func:`fit`), >= 0
+    :param progress: called with policy steps simulated
     :return: the training summary (samples, aggressive ones, training AUC, seeds), also stored in the file
     """
     features, labels = collect(config, seeds, episodes, progress=progress)
@@ -118,5 +125,11 @@ def train_tagger(config: DTConfig, seeds: Sequence[int], episodes: int, out: str
 
 
 def training_steps(config: DTConfig, seeds: Sequence[int], episodes: int) -> int:
-    """Policy steps :func:`collect` simulates (for a progress bar)."""
+    """Policy steps :func:`collect` simulates (for a progress bar).
+
+    :param config: resolved configuration
+    :param seeds: training seeds
+    :param episodes: episodes per seed
+    :return: the policy steps
+    """
     return len(seeds) * episodes * episode_steps(config)

@@ -51,7 +51,11 @@ UPLINK_STRESS = {"twin.uplink.latency_mean_s": 0.3, "twin.uplink.rate_hz": 1.0}
 
 
 def uplink_settings(cfg: DTConfig) -> dict[str, Any]:
-    """The uplink, population and episode settings an evaluation's JSON records."""
+    """The uplink, population and episode settings an evaluation's JSON records.
+
+    :param cfg: resolved configuration
+    :return: the settings by name
+    """
     return {
         "noise_sigma_m": cfg.twin.uplink.noise_sigma_m,
         "uplink_rate_hz": cfg.twin.uplink.rate_hz,
@@ -82,7 +86,11 @@ def uplink_sweep_runs(sweep: tuple[tuple[str, str, tuple[float, ...]], ...]) -> 
 
 
 def episode_steps(config: DTConfig) -> int:
-    """Policy steps one evaluation episode takes, the pre-roll counted (for progress bars)."""
+    """Policy steps one evaluation episode takes, the pre-roll counted (for progress bars).
+
+    :param config: resolved configuration
+    :return: the policy steps
+    """
     hw = config.highway
     return int(round((config.twin.preroll_s + hw.duration) * hw.policy_frequency))
 
@@ -184,6 +192,8 @@ def auc(scores: np.ndarray, positive: np.ndarray) -> float:
     """ROC AUC of ``scores`` for the boolean labels ``positive``: the Mann-Whitney ``U / (n1 n2)``
     (the probability that a positive outscores a negative, ties counted one half).
 
+    :param scores: one score per sample
+    :param positive: the samples' labels (bool)
     :return: the AUC, NaN when either class is empty
     """
     from scipy.stats import mannwhitneyu  # lazy: heavy (scipy.stats, ~0.35 s), twin-eval on the continuum only
@@ -198,6 +208,9 @@ def precision_at_recall(scores: np.ndarray, positive: np.ndarray, min_recall: fl
     """The best precision of the rule ``score >= threshold`` over the thresholds (the distinct scores)
     whose recall is at least ``min_recall``.
 
+    :param scores: one score per sample
+    :param positive: the samples' labels (bool)
+    :param min_recall: the least recall [-]
     :return: precision, threshold and recall there (NaNs when there are no positives)
     """
     n_pos = int(positive.sum())

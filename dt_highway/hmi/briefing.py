@@ -93,6 +93,7 @@ class Screen(BaseModel):
         """The screen with its placeholders filled.
 
         :param values: ``label``, ``number``, ``total``, ``duration``
+        :return: a copy with the title and text filled (a placeholder not given: empty)
         """
         full = {p: values.get(p, "") for p in PLACEHOLDERS}
         return self.model_copy(update={"title": self.title.format(**full), "text": self.text.format(**full)})
@@ -124,6 +125,7 @@ class QuestionnairePlan(BaseModel):
         """The questionnaires after a trial.
 
         :param overlay: the trial's condition shows the overlay (:func:`~dt_highway.conditions.shows_overlay`)
+        :return: the questionnaires' names (or ``.toml`` paths), in order
         """
         return list(self.overlay if overlay else self.baseline)
 
@@ -247,6 +249,7 @@ def format_duration(seconds: float) -> str:
     """A trial's length as a participant reads it: ``30 seconds``, ``1 minute``, ``2 minutes 30 seconds``.
 
     :param seconds: the length [s] (rounded to whole seconds)
+    :return: the length in words
     """
     s = max(int(round(seconds)), 0)
     mins, secs = divmod(s, 60)
@@ -279,17 +282,31 @@ class TextFont:
         self._ft.pad = True  # every line as high as the font, the baselines aligned
 
     def size(self, text: str) -> tuple[int, int]:
-        """Width and height of ``text`` drawn [px]."""
+        """Width and height of ``text`` drawn [px].
+
+        :param text: the text
+        :return: ``(width, height)`` [px]
+        """
         r = self._ft.get_rect(text)
         return r.width, r.height
 
     def get_linesize(self) -> int:
-        """Distance between lines [px]."""
+        """Distance between lines [px].
+
+        :return: the line height [px]
+        """
         return int(self._ft.get_sized_height(0))
 
     def render(self, text: str, antialias: bool, colour: tuple[int, int, int],
                background: tuple[int, int, int] | None = None) -> pygame.Surface:
-        """``text`` drawn in ``colour`` (on ``background``, else transparent); ``antialias`` as pygame's (always on)."""
+        """``text`` drawn in ``colour`` (on ``background``, else transparent); ``antialias`` as pygame's (always on).
+
+        :param text: the text
+        :param antialias: ignored (kept for ``pygame.font.Font.render``'s signature)
+        :param colour: the letters' RGB colour
+        :param background: the RGB background colour (``None``: transparent)
+        :return: the drawn text
+        """
         surf, _ = self._ft.render(text, colour, background)
         return surf
 

@@ -115,6 +115,8 @@ def beep_samples(rate_hz: int, size: int, channels: int, freq_hz: float = 880.0,
     :param rate_hz: sample rate [Hz]
     :param size: pygame's sample format (``-16``: int16, ``32``: float32, ``8``/``-8``: 8 bit)
     :param channels: channels [-]
+    :param freq_hz: the first tone's frequency [Hz]
+    :param duration_s: the beep's length, both tones [s]
     :return: ``(n,)`` for one channel, else ``(n, channels)``
     :raises ValueError: on a sample format it does not write
     """

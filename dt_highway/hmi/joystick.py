@@ -52,15 +52,25 @@ class AxisDevice(Protocol):
     """What the input layer reads of a device: pygame's ``Joystick`` has these methods."""
 
     def get_name(self) -> str:
-        """The device's name."""
+        """The device's name.
+
+        :return: the name
+        """
         ...
 
     def get_numaxes(self) -> int:
-        """How many axes it has."""
+        """How many axes it has.
+
+        :return: the number of axes
+        """
         ...
 
     def get_axis(self, axis_number: int) -> float:
-        """An axis's position, in ``[-1, 1]``."""
+        """An axis's position, in ``[-1, 1]``.
+
+        :param axis_number: the axis (0-based)
+        :return: its position [-]
+        """
         ...
 
 
@@ -168,6 +178,8 @@ class Calibration(BaseModel):
     def load(cls, path: str | Path) -> Calibration:
         """Read a calibration file.
 
+        :param path: the calibration file (JSON, as :meth:`save` writes it)
+        :return: the calibration
         :raises ConfigError: one line, when it is missing, not JSON, or a value is wrong (the
             dotted key and what is allowed)
         """
@@ -264,6 +276,8 @@ class JoystickInput:
 
         With pygame, events must be pumped (``pygame.event.get()`` or ``pump()``) for the axes
         to move.
+
+        :return: the acceleration, steering, pedal travels and lane request now
         """
         c, d = self.cal, self.device
         steer = c.steer.steer(d.get_axis(c.steer.axis))
@@ -320,6 +334,7 @@ class CalibrationRecorder:
         """The calibration.
 
         :param device: the device's name
+        :return: the axes found, with their ranges
         :raises CalibrationError: when a step has no values or no axis moved enough in it
         """
         for step, rows in self.samples.items():
@@ -479,7 +494,12 @@ class VirtualJoystick:
         self.n_axes = n_axes
 
     def set_axis(self, axis: int, value: float) -> None:
-        """Move an axis to ``value`` in ``[-1, 1]`` (SDL's -32768..32767), seen by pygame at its next event pump."""
+        """Move an axis to ``value`` in ``[-1, 1]`` (SDL's -32768..32767), seen by pygame at its next event pump.
+
+        :param axis: the axis (0-based)
+        :param value: its position [-] (clipped to ``[-1, 1]``)
+        :raises ValueError: on an axis the device does not have
+        """
         raw = int(round(max(-1.0, min(1.0, value)) * 32767)) if value > -1.0 else -32768
         if self._sdl.SDL_JoystickSetVirtualAxis(self._handle, axis, raw) != 0:
             raise ValueError(f"axis must be 0..{self.n_axes - 1} (got {axis})")

@@ -117,6 +117,9 @@ class Steering:
     def update(self, left: bool, right: bool, dt_s: float) -> float:
         """Advance by ``dt_s`` with these keys held (both or neither: back to the centre).
 
+        :param left: the Left key is held
+        :param right: the Right key is held
+        :param dt_s: time since the last update [s]
         :return: the steering command in ``[-1, 1]``
         """
         target = (1.0 if right else 0.0) - (1.0 if left else 0.0)
@@ -165,6 +168,9 @@ class KeyScript:
     def parse(cls, text: str, source: str = "<keys>") -> KeyScript:
         """Read ``time down|up KEY`` lines (``#`` starts a comment).
 
+        :param text: the script's text
+        :param source: where it comes from, for the error messages (a file name)
+        :return: the script
         :raises KeyScriptError: naming the file and line of the first bad one, or a script that ends with
             the trial paused (``P`` pressed an odd number of times, and no ``ESC``, which ends a scripted
             trial, after the last)
@@ -213,6 +219,8 @@ class KeyScript:
         """Read a key script file: UTF-8 text (a byte-order mark is skipped), or UTF-16 with its
         byte-order mark (as some Windows editors save it).
 
+        :param path: the key script file
+        :return: the script
         :raises KeyScriptError: when it is missing, not text, or a line is bad
         """
         p = Path(path)
@@ -230,7 +238,11 @@ class KeyScript:
         return cls.parse(text, str(p))
 
     def due(self, t_s: float) -> list[KeyEvent]:
-        """The events up to trial time ``t_s`` not returned before."""
+        """The events up to trial time ``t_s`` not returned before.
+
+        :param t_s: trial time [s]
+        :return: those events, in time order
+        """
         out = []
         while self._next < len(self.events) and self.events[self._next].t_s <= t_s + 1e-9:
             out.append(self.events[self._next])

@@ -11,7 +11,7 @@ the window's size. No simulation runs and no twin or detector is involved: the m
 cars by projecting their outlines.
 
 The scene: the ego in the middle lane; a car in the left lane 16 m ahead, already angled towards the
-ego's lane, with the cut-in mark ("<< CUTTING IN", amber); a car in the right lane 34 m ahead with the
+ego's lane, with the cut-in mark (">> CUTTING IN", amber); a car in the right lane 34 m ahead with the
 driver-type mark ("AGGRESSIVE DRIVER", red); two cars farther ahead without a mark. Every overlay
 condition (the placebo's too) explains the display with this one picture, so it tells none of them
 apart; in a given trial the display shows one or both kinds of mark.

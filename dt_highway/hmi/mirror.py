@@ -216,6 +216,7 @@ def mirrors_for(env: DTHighwayEnv, size: tuple[int, int], settings: MirrorSettin
     :param env: the dt-highway env (unwrapped), after ``reset``
     :param size: the strip's ``(width, height)`` [px]
     :param settings: the mirrors' viewpoints and layout
+    :return: the mirrors' renderers
     """
     cached = _CACHE.get(env)
     road = env.road

@@ -105,6 +105,8 @@ class Scale(BaseModel):
     def check(self, value: Any) -> int:
         """A value, checked to be one of the scale's points.
 
+        :param value: the value to check
+        :return: the value, as an int
         :raises ValueError: naming the allowed values
         """
         if finite_number(value) is None or value != int(value) or int(value) not in range(self.min, self.max + 1, self.step):
@@ -173,7 +175,10 @@ class Questionnaire(BaseModel):
 
 
 def available_questionnaires() -> list[str]:
-    """The names of the shipped questionnaires (:data:`QUESTIONNAIRE_DIR`)."""
+    """The names of the shipped questionnaires (:data:`QUESTIONNAIRE_DIR`).
+
+    :return: the names, sorted
+    """
     return sorted(p.stem for p in QUESTIONNAIRE_DIR.glob("*.toml"))
 
 
@@ -255,6 +260,8 @@ def load_answers(path: str | Path) -> dict[str, Any]:
     table per trial directory name (``{"P01-adas": {"nasa_tlx": {...}}}``), which a trial takes
     when its name is there.
 
+    :param path: the answers file (``.json``, else read as TOML)
+    :return: the file's table
     :raises ConfigError: one line naming the file, when it cannot be read or is not a table
     """
     p = Path(path)
@@ -358,13 +365,19 @@ class Form:
         self._last = now
 
     def go(self, index: int) -> None:
-        """Show item ``index`` (clipped to the items)."""
+        """Show item ``index`` (clipped to the items).
+
+        :param index: the item (0-based)
+        """
         self.tick()
         self.index = min(max(index, 0), len(self.values) - 1)
         self.message = ""
 
     def set(self, value: int) -> None:
-        """Answer the item shown with ``value`` (clipped to the scale)."""
+        """Answer the item shown with ``value`` (clipped to the scale).
+
+        :param value: the point chosen
+        """
         sc = self.definition.scale
         value = min(max(value, sc.min), sc.max)
         if self.values[self.index] != value:
@@ -375,7 +388,10 @@ class Form:
         self.message = ""
 
     def move(self, direction: int) -> None:
-        """Left (``-1``) or Right (``+1``): the mark moves one step; the first press places it in the middle."""
+        """Left (``-1``) or Right (``+1``): the mark moves one step; the first press places it in the middle.
+
+        :param direction: ``-1`` or ``+1``
+        """
         current = self.values[self.index]
         sc = self.definition.scale
         self.set(sc.middle if current is None else current + direction * sc.step)
@@ -397,7 +413,10 @@ class Form:
                 self.done = True
 
     def key(self, key: int) -> None:
-        """Handle one key press (module docstring)."""
+        """Handle one key press (module docstring).
+
+        :param key: the pygame key code
+        """
         n_points = self.definition.scale.n_points
         if key == pygame.K_UP:
             self.go(self.index - 1)
@@ -414,7 +433,11 @@ class Form:
             self.message = "Please answer every item; Enter goes on."
 
     def click(self, pos: tuple[int, int], layout: Layout) -> None:
-        """Handle a left click at ``pos`` [px] on the screen drawn with ``layout``."""
+        """Handle a left click at ``pos`` [px] on the screen drawn with ``layout``.
+
+        :param pos: where the click was ``(x, y)`` [px]
+        :param layout: where the screen's parts were drawn (:func:`draw_form`)
+        """
         x, y = pos
         if layout.scale_hit.collidepoint(x, y):
             frac = (x - layout.x0) / max(layout.x1 - layout.x0, 1)
@@ -430,14 +453,21 @@ class Form:
                     self.go(i)
 
     def handle(self, event: pygame.event.Event, layout: Layout) -> None:
-        """Handle one pygame event (a key press or a left click)."""
+        """Handle one pygame event (a key press or a left click).
+
+        :param event: the event (others are ignored)
+        :param layout: where the screen's parts were drawn (:func:`draw_form`)
+        """
         if event.type == pygame.KEYDOWN:
             self.key(event.key)
         elif event.type == pygame.MOUSEBUTTONDOWN and getattr(event, "button", 1) == 1:
             self.click(event.pos, layout)
 
     def result(self) -> dict[str, Any]:
-        """The answers, times and (when every item is answered) the score, as stored."""
+        """The answers, times and (when every item is answered) the score, as stored.
+
+        :return: the questionnaire's record: title, answers, score, and per item its value and times
+        """
         self.tick()
         d = self.definition
         answers = {item.id: v for item, v in zip(d.items, self.values, strict=True)}

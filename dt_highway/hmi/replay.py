@@ -401,7 +401,11 @@ FRAME_NAME = re.compile(r"t\d{4,}\.\d{2}s\.png")
 
 
 def replay_frames_in(folder: Path) -> list[Path]:
-    """The replay frames ``folder`` holds, by name (none if it is no folder)."""
+    """The replay frames ``folder`` holds, by name (none if it is no folder).
+
+    :param folder: where to look (not its subfolders)
+    :return: the frames' paths, sorted by name (so by trial time)
+    """
     return sorted(p for p in folder.iterdir() if FRAME_NAME.fullmatch(p.name)) if folder.is_dir() else []
 
 

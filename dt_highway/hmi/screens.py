@@ -91,6 +91,7 @@ def card(size: tuple[int, int], title: str, lines: list[str]) -> np.ndarray:
     :param size: ``(width, height)`` [px]
     :param title: the title
     :param lines: the text; a tab splits a line into two columns (the keys' legend)
+    :return: the picture, ``(height, width, 3)`` RGB
     """
     w, h = size
     out = np.full((h, w, 3), 28, np.uint8)
@@ -108,6 +109,8 @@ def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: fl
     """Show a screen (e.g. a break between trials) until Enter is pressed.
 
     :param size: window size ``(width, height)`` [px]
+    :param title: the title
+    :param lines: the text; a tab splits a line into two columns (the keys' legend)
     :param timeout_s: give up waiting after this long (``None``: wait for Enter)
     :param fullscreen: fill the screen
     :return: ``False`` when the participant pressed Esc, closed the window or a signal came

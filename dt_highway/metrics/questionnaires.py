@@ -13,7 +13,11 @@ RESULTS_FILE = "questionnaires.json"
 
 def read_results(trial_dir: str | Path) -> dict[str, Any] | None:
     """A trial's questionnaire results (:data:`RESULTS_FILE`), or ``None`` when it has none or it
-    cannot be read."""
+    cannot be read.
+
+    :param trial_dir: the trial's directory
+    :return: the results, or ``None``
+    """
     p = Path(trial_dir) / RESULTS_FILE
     try:
         data = json.loads(p.read_text(encoding="utf-8"))

@@ -129,7 +129,12 @@ COLLISION_KINDS = ("rear_end", "side_swipe", "cut_in", "unknown")
 
 
 def time_to_collision(gap_m: float, closing_mps: float) -> float:
-    """TTC [s]: ``gap / closing speed``; infinite when not closing, NaN when already in contact (``gap <= 0``)."""
+    """TTC [s]: ``gap / closing speed``; infinite when not closing, NaN when already in contact (``gap <= 0``).
+
+    :param gap_m: bumper-to-bumper gap [m]
+    :param closing_mps: closing speed (> 0: closing) [m/s]
+    :return: the TTC [s]
+    """
     if gap_m <= 0.0:
         return math.nan
     if not closing_mps > 0.0:
@@ -138,7 +143,12 @@ def time_to_collision(gap_m: float, closing_mps: float) -> float:
 
 
 def drac(gap_m: float, closing_mps: float) -> float:
-    """Deceleration rate to avoid the crash [m/s^2]: ``dv^2 / (2 gap)`` when closing, else 0; NaN in contact."""
+    """Deceleration rate to avoid the crash [m/s^2]: ``dv^2 / (2 gap)`` when closing, else 0; NaN in contact.
+
+    :param gap_m: bumper-to-bumper gap [m]
+    :param closing_mps: closing speed (> 0: closing) [m/s]
+    :return: the DRAC [m/s^2]
+    """
     if gap_m <= 0.0:
         return math.nan
     if not closing_mps > 0.0:
@@ -252,7 +262,10 @@ class SafetySample:
     collision: Collision | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """The sample as a flat dict (``collision`` a dict or ``None``)."""
+        """The sample as a flat dict (``collision`` a dict or ``None``).
+
+        :return: field name -> value
+        """
         return asdict(self)
 
 
@@ -272,7 +285,10 @@ class CutIn:
     t_lane_s: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
-        """The cut-in as a flat dict."""
+        """The cut-in as a flat dict.
+
+        :return: field name -> value
+        """
         return asdict(self)
 
 

@@ -50,7 +50,11 @@ def describe(x: np.ndarray, lo: float = -math.inf, hi: float = math.inf) -> dict
 
 def completed_pairs(metrics: pd.DataFrame) -> pd.DataFrame:
     """The completed trials not excluded, with their pair ``key``: participant and seed (the pair number
-    without a seed)."""
+    without a seed).
+
+    :param metrics: one row per trial (:func:`dt_highway.report.collect`)
+    :return: a copy of those trials' rows, with a ``key`` column
+    """
     ok = metrics["status"].isin(FINISHED_STATUSES)
     if "excluded" in metrics:
         ok &= metrics["excluded"].fillna("").astype(str) == ""
@@ -64,7 +68,12 @@ def completed_pairs(metrics: pd.DataFrame) -> pd.DataFrame:
 
 
 def check_conditions(metrics: pd.DataFrame, *names: str) -> None:
-    """Refuse a condition no trial of ``metrics`` ran in (its trials may all be excluded: that is no mistake)."""
+    """Refuse a condition no trial of ``metrics`` ran in (its trials may all be excluded: that is no mistake).
+
+    :param metrics: one row per trial (:func:`dt_highway.report.collect`)
+    :param names: the conditions that must be there
+    :raises ValueError: one line, naming the missing condition and the ones held
+    """
     held = sorted({str(c) for c in metrics["condition"].dropna()}) if "condition" in metrics else []
     for name in names:
         if name not in held:

@@ -99,6 +99,7 @@ def git_commit(directory: Path = PACKAGE_DIR) -> str | None:
     or without git.
 
     :param directory: the checkout's top directory
+    :return: the commit, or ``None``
     """
     if not (directory / ".git").exists():
         return None
@@ -146,7 +147,10 @@ class TrialWriter:
             raise
 
     def step(self, row: dict[str, Any]) -> None:
-        """Append one simulation step's row (keys of :data:`STEP_COLUMNS`)."""
+        """Append one simulation step's row (keys of :data:`STEP_COLUMNS`).
+
+        :param row: column -> value (other keys are ignored)
+        """
         self._csv.writerow(row)
         self.n_steps += 1
         t = float(row.get("t_s", 0.0))
@@ -160,6 +164,7 @@ class TrialWriter:
         :param kind: e.g. ``cut_in``, ``overlay_shown``, ``overlay_hidden``, ``collision``,
             ``lane_change``, ``key_down``, ``key_up``
         :param t_s: simulation time [s]
+        :param fields: the event's other fields (``vehicle_id``, ``label``...), JSON-serialisable
         """
         self._events.write(json.dumps(json_safe({"kind": kind, "t_s": t_s, **fields}), allow_nan=False) + "\n")
         self._events.flush()
@@ -169,7 +174,11 @@ class TrialWriter:
         self._steps.flush()
 
     def close(self, status: str = "completed", end_reason: str = "") -> None:
-        """Finish the trial: flush, and mark it ``completed`` or ``aborted``."""
+        """Finish the trial: flush, and mark it ``completed`` or ``aborted``.
+
+        :param status: the trial's final ``status`` (``completed``, ``ended_by_collision``, ``aborted``)
+        :param end_reason: why it ended, in a few words
+        """
         if self._steps.closed:
             return
         with signals_deferred():  # a second Ctrl-C here would leave the log "running"
@@ -263,7 +272,10 @@ class Trial:
 
     def metrics(self) -> dict[str, Any]:
         """Every safety metric of the trial (:func:`dt_highway.metrics.safety.trial_metrics`), and the
-        overlay's (:func:`dt_highway.metrics.overlay_metrics.overlay_metrics`) when the log has its columns."""
+        overlay's (:func:`dt_highway.metrics.overlay_metrics.overlay_metrics`) when the log has its columns.
+
+        :return: metric name -> value
+        """
         m = trial_metrics(self.steps, self.dt_s, self.cut_ins, collisions=self.collisions,
                           planned_duration_s=self.planned_duration_s)
         if "overlay_ids" in self.steps and len(self.steps):

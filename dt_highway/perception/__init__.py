@@ -65,6 +65,7 @@ def fusion_settings(cfg: FusionConfig, method: str | None = None) -> FusionSetti
 
     :param cfg: :class:`~dt_highway.config.FusionConfig`
     :param method: overrides ``cfg.method``
+    :return: the settings for :class:`~dt_highway.perception.fusion.Fusion`
     """
     fields = cfg.model_dump(exclude={"enabled", "method"})
     return FusionSettings(method=method or cfg.method, **fields)

@@ -26,7 +26,11 @@ Reference = Literal["planar", "range"]
 
 def row_median(values: np.ndarray) -> np.ndarray:
     """Median of each row of a 2-D array: ``np.median(values, axis=1)`` (the same numbers,
-    compiled, without ``np.median``'s overhead on small arrays)."""
+    compiled, without ``np.median``'s overhead on small arrays).
+
+    :param values: a 2-D array ``(N, M)``
+    :return: the median of each row ``(N,)``
+    """
     return _row_medians(np.ascontiguousarray(values, dtype=float))
 
 

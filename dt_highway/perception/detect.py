@@ -49,12 +49,20 @@ class Detections:
 
     @classmethod
     def empty(cls) -> Detections:
-        """No detections."""
+        """No detections.
+
+        :return: detections of zero rows
+        """
         return cls(np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64))
 
     @classmethod
     def of(cls, boxes: list[tuple[float, float, float, float]] | np.ndarray, score: float = 1.0) -> Detections:
-        """Vehicle detections from a list of boxes (tests, examples)."""
+        """Vehicle detections from a list of boxes (tests, examples).
+
+        :param boxes: ``(N, 4)`` boxes ``x1, y1, x2, y2`` [px]
+        :param score: every box's confidence in ``[0, 1]``
+        :return: the detections, all of class vehicle
+        """
         b = np.asarray(boxes, dtype=float).reshape(-1, 4)
         return cls(b, np.full(len(b), score), np.zeros(len(b), dtype=np.int64))
 
@@ -63,7 +71,11 @@ class Detector(Protocol):
     """Anything with ``detect(image) -> Detections``: a detector sees the image only."""
 
     def detect(self, image: CameraImage) -> Detections:
-        """Find the vehicles in an image."""
+        """Find the vehicles in an image.
+
+        :param image: the camera image
+        :return: the detections
+        """
         ...
 
 
@@ -183,6 +195,7 @@ def run_detector(detector: Detector | SimulatedDetector, image: CameraImage, tru
     :param detector: the detector
     :param image: the camera image
     :param truth: the frame's ground truth (given to the sensor model only)
+    :return: the detections
     """
     if isinstance(detector, SimulatedDetector):
         return detector.detect(image, truth)

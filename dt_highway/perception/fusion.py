@@ -179,6 +179,9 @@ class Fusion:
         """Where each twin vehicle should appear: its 3-D outline (a car of the assumed size at
         its compensated position and heading) projected and clipped to the image.
 
+        :param frame: the camera image (its pose is the ego's)
+        :param twin: the twin's vehicles as received
+        :param now_s: the frame's time on the twin's clock [s]
         :return: ``(K, 4)`` boxes [px], NaN rows for vehicles not in view
         """
         return self._expected_boxes(_twin_state(twin), frame, now_s)

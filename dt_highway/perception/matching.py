@@ -62,7 +62,12 @@ def _valid_anchor(anchor_uv: np.ndarray | tuple[float, float] | None) -> np.ndar
 
 
 def containing(boxes: np.ndarray, anchor_uv: np.ndarray) -> np.ndarray:
-    """Indices of the boxes that contain the anchor (edges included)."""
+    """Indices of the boxes that contain the anchor (edges included).
+
+    :param boxes: ``(N, 4)`` boxes ``x1, y1, x2, y2`` [px]
+    :param anchor_uv: the anchor pixel ``(u, v)`` [px]
+    :return: the indices into ``boxes``, in order
+    """
     b = np.asarray(boxes, dtype=float).reshape(-1, 4)
     u, v = float(anchor_uv[0]), float(anchor_uv[1])
     return np.flatnonzero((b[:, 0] <= u) & (u <= b[:, 2]) & (b[:, 1] <= v) & (v <= b[:, 3]))

@@ -291,6 +291,7 @@ class BoxTracker:
     def coasting(self, min_hits: int = 3) -> tuple[np.ndarray, np.ndarray]:
         """Tracks without a detection this frame that had at least ``min_hits`` before.
 
+        :param min_hits: least number of detections a track must have had
         :return: their ids ``(M,)`` and predicted boxes ``(M, 4)``
         """
         return _coasting(self._f, self._i, min_hits)

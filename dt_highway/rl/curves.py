@@ -38,7 +38,11 @@ SMOOTH_ROLLOUTS = 10
 
 
 def curve_paths(model_path: str | Path) -> tuple[Path, Path]:
-    """Where a policy's curve goes: ``agents/x.zip`` -> ``agents/x.curve.csv``, ``agents/x.curve.png``."""
+    """Where a policy's curve goes: ``agents/x.zip`` -> ``agents/x.curve.csv``, ``agents/x.curve.png``.
+
+    :param model_path: the policy's model file
+    :return: the CSV and the PNG
+    """
     model_path = Path(model_path)
     return model_path.with_suffix(".curve.csv"), model_path.with_suffix(".curve.png")
 

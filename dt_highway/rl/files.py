@@ -14,13 +14,19 @@ FORMAT = "dt-highway policy 1"
 
 
 def sidecar_path(model_path: str | Path) -> Path:
-    """Where the metadata of a policy lives: ``agents/x.zip`` -> ``agents/x.json``."""
+    """Where the metadata of a policy lives: ``agents/x.zip`` -> ``agents/x.json``.
+
+    :param model_path: the policy's model file
+    :return: the metadata file
+    """
     return Path(model_path).with_suffix(".json")
 
 
 def read_policy_meta(model_path: str | Path) -> dict[str, Any]:
     """The metadata ``dt-highway train`` wrote beside a policy (:func:`sidecar_path`).
 
+    :param model_path: the policy's model file
+    :return: the metadata
     :raises ConfigError: one line, when it is missing, unreadable or not a dt-highway policy's
     """
     p = Path(model_path)
@@ -38,7 +44,11 @@ def read_policy_meta(model_path: str | Path) -> dict[str, Any]:
 
 
 def sha256(path: str | Path) -> str:
-    """SHA-256 of a file, hex."""
+    """SHA-256 of a file, hex.
+
+    :param path: the file
+    :return: the digest, 64 hex digits
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -47,7 +57,10 @@ def sha256(path: str | Path) -> str:
 
 
 def versions() -> dict[str, str]:
-    """Versions of the packages a policy file depends on."""
+    """Versions of the packages a policy file depends on.
+
+    :return: package name -> version (``unknown`` when not installed)
+    """
     out = {}
     for pkg in ("dt-highway", "stable-baselines3", "torch", "gymnasium", "highway-env", "numpy"):
         try:

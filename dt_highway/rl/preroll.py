@@ -42,6 +42,7 @@ def ahead_ok(env_config: DTConfig) -> bool:
     fusion, no twin (what is left pickles as plain state), traffic with a pre-roll to save.
 
     :param env_config: the env configuration the training runs
+    :return: whether it can
     """
     return (not env_config.camera.enabled and not env_config.fusion.enabled and not env_config.twin.enabled
             and env_config.twin.preroll_s > 0 and env_config.traffic.driver_types)
@@ -67,7 +68,12 @@ def _receive(stream: IO[bytes]) -> Any:
 
 class Reseed(gym.Wrapper):
     """Give every episode its own seed: ``first, first + stride, first + 2 stride, ...``
-    (vectorised envs pass a seed to the first reset only)."""
+    (vectorised envs pass a seed to the first reset only).
+
+    :param env: the env to wrap
+    :param first: the first episode's seed
+    :param stride: seed increment between episodes
+    """
 
     def __init__(self, env: gym.Env, first: int, stride: int = 1) -> None:
         super().__init__(env)
@@ -81,7 +87,12 @@ class Reseed(gym.Wrapper):
         return seed
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        """Reset with the next seed of the sequence (or ``seed``, when given)."""
+        """Reset with the next seed of the sequence (or ``seed``, when given).
+
+        :param seed: the episode's seed (``None``: the next of the sequence)
+        :param options: passed to the env's reset
+        :return: the env's ``(observation, info)``
+        """
         return self.env.reset(seed=self._seed_for(seed), options=options)
 
 
@@ -132,7 +143,12 @@ class PrerollAhead(Reseed):
         return answer if isinstance(answer, tuple) else None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        """Reset, from the helper's computed pre-roll when it matches the seed (else computed here), and ask for the next."""
+        """Reset, from the helper's computed pre-roll when it matches the seed (else computed here), and ask for the next.
+
+        :param seed: the episode's seed (``None``: the next of the sequence)
+        :param options: passed to the env's reset (given: the reset is computed here)
+        :return: the env's ``(observation, info)``
+        """
         seed = self._seed_for(seed)
         ready = None
         if self._pending is not None:

@@ -94,6 +94,7 @@ def hard_braking_excess(accel_mps2: np.ndarray, dt_s: float, threshold_mps2: flo
     :param accel_mps2: the ego's acceleration per sample [m/s^2]
     :param dt_s: simulation step [s]
     :param threshold_mps2: deceleration from which braking costs [m/s^2]
+    :return: the excess (>= 0) [m/s]
     """
     a = np.asarray(accel_mps2, dtype=float)
     return float(dt_s * np.sum(np.maximum(0.0, -a - threshold_mps2)))
@@ -105,6 +106,7 @@ def speed_progress(speed_mps: np.ndarray, dt_s: float, target_mps: float) -> flo
     :param speed_mps: the ego's speed per sample [m/s]
     :param dt_s: simulation step [s]
     :param target_mps: ``v*`` [m/s]
+    :return: the time (>= 0) [s]
     """
     v = np.asarray(speed_mps, dtype=float)
     return float(dt_s * np.sum(np.maximum(0.0, 1.0 - np.abs(v - target_mps) / target_mps)))
@@ -115,6 +117,7 @@ def jerk_variation(accel_mps2: np.ndarray, previous_mps2: float | None = None) -
 
     :param accel_mps2: the ego's acceleration per sample [m/s^2]
     :param previous_mps2: the acceleration of the sample before the first (``None``: unknown, not counted)
+    :return: the total variation (>= 0) [m/s^2]
     """
     a = np.asarray(accel_mps2, dtype=float)
     if previous_mps2 is not None and len(a):
@@ -138,7 +141,10 @@ class RewardTerms:
         self.accel_mps2: float | None = None
 
     def reset(self, x_m: float) -> None:
-        """Start an episode with the ego at ``x_m`` [m] (its acceleration before the first sample unknown)."""
+        """Start an episode with the ego at ``x_m`` [m] (its acceleration before the first sample unknown).
+
+        :param x_m: the ego's position along the road [m]
+        """
         self.x_m, self.accel_mps2 = float(x_m), None
 
     def step(self, highway_reward: float, samples: Sequence[Mapping[str, Any]]) -> dict[str, float]:
@@ -192,7 +198,12 @@ class SafetyReward(gym.Wrapper):
         self.terms = RewardTerms(config, _sim_step_s(env))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
-        """Reset the env and the reward's terms."""
+        """Reset the env and the reward's terms.
+
+        :param seed: the episode's seed, passed to the env
+        :param options: passed to the env's reset
+        :return: the env's ``(observation, info)``
+        """
         obs, info = self.env.reset(seed=seed, options=options)
         self.terms.dt_s = _sim_step_s(self.env)  # a reset may reconfigure
         self.terms.reset(_ego_x(info))
@@ -201,6 +212,8 @@ class SafetyReward(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         """Step the env; the reward is highway-env's plus the safety terms (their parts in ``info["reward_terms"]``).
 
+        :param action: the policy's action, passed to the env
+        :return: the env's ``(observation, reward, terminated, truncated, info)`` with this reward
         :raises ValueError: on an env without ``info["safety"]``
         """
         obs, reward, terminated, truncated, info = self.env.step(action)

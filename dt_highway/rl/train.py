@@ -130,6 +130,9 @@ def _policy_name(cfg: TrainConfig) -> str:
 def build_model(cfg: TrainConfig, env: VecEnv) -> BaseAlgorithm:
     """The stable-baselines3 model of a training configuration.
 
+    :param cfg: training configuration
+    :param env: the vectorised training env
+    :return: the model, untrained
     :raises ConfigError: on hyperparameters the algorithm does not take
     """
     algo = getattr(sb3, cfg.algorithm)

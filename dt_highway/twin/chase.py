@@ -168,6 +168,8 @@ class ChaseDetector:
     def load(path: str | Path | None = None) -> ChaseDetector:
         """Read weights written by :func:`save_chase_weights` (``None``: the shipped ones).
 
+        :param path: the ``.npz`` file (``None``: the shipped weights)
+        :return: the detector
         :raises ValueError: when the file cannot be read or was made for other inputs
         """
         if path is None:
@@ -183,7 +185,8 @@ class ChaseDetector:
         return ChaseDetector(arrays["mean"], arrays["scale"], layers, meta)
 
     def predict(self, inputs: ChaseInputs) -> np.ndarray:
-        """:return: ``(N,)`` P(chasing the ego) of ``inputs.vehicle_ids`` [-]"""
+        """:param inputs: the detector's inputs
+        :return: ``(N,)`` P(chasing the ego) of ``inputs.vehicle_ids`` [-]"""
         if len(inputs) == 0:
             return np.zeros(0)
         a = (inputs.x - self.mean) / self.scale
@@ -196,6 +199,13 @@ class ChaseDetector:
 
 def save_chase_weights(path: str | Path, mean: np.ndarray, scale: np.ndarray, layers: list[tuple[np.ndarray, np.ndarray]],
                        meta: dict[str, str] | None = None) -> None:
-    """Write the detector's weights as a ``.npz`` of plain arrays (no pickles)."""
+    """Write the detector's weights as a ``.npz`` of plain arrays (no pickles).
+
+    :param path: the ``.npz`` file to write (its folder is created)
+    :param mean: input normalisation, ``(F,)``
+    :param scale: input normalisation, ``(F,)``
+    :param layers: ``(W, b)`` of each layer, ``W`` as ``(in, out)``, the last with one output (the logit)
+    :param meta: how the weights were made (seeds, epochs, samples)
+    """
     write_weights(path, {"mean": np.asarray(mean, dtype=np.float64), "scale": np.asarray(scale, dtype=np.float64),
                          "features": np.asarray(CHASE_FEATURES)}, layers, meta)

@@ -67,7 +67,8 @@ class TwinVehicleView:
     intents: tuple[LaneChangeIntent, ...] = ()
 
     def intent(self, horizon_s: float) -> LaneChangeIntent | None:
-        """:return: the intention for the horizon closest to ``horizon_s``, ``None`` without any."""
+        """:param horizon_s: the horizon asked for [s]
+        :return: the intention for the horizon closest to ``horizon_s``, ``None`` without any."""
         if not self.intents:
             return None
         return min(self.intents, key=lambda i: abs(i.horizon_s - horizon_s))
@@ -172,13 +173,19 @@ class CloudTwin:
             self.tagger.records.clear()
 
     def receive(self, fixes: list[GnssFix]) -> None:
-        """Queue fixes; each enters the store at its arrival time."""
+        """Queue fixes; each enters the store at its arrival time.
+
+        :param fixes: fixes from the uplink, each with its arrival time
+        """
         for f in fixes:
             heapq.heappush(self._pending, (f.arrival_s, next(self._seq), f))
 
     def advance(self, now_s: float) -> None:
         """Move the twin clock to ``now_s``: store arrived fixes, re-tag at ``tagger.update_hz``,
-        estimate the intentions at ``intention.update_hz``."""
+        estimate the intentions at ``intention.update_hz``.
+
+        :param now_s: twin time [s]
+        """
         self.now_s = now_s
         arrived = []
         while self._pending and self._pending[0][0] <= now_s:
@@ -203,7 +210,11 @@ class CloudTwin:
         return len(self._pending)
 
     def view_around(self, ego_id: int) -> tuple[TwinVehicleView, ...]:
-        """The twin's view of the vehicles within the downlink radius of the ego's last fix."""
+        """The twin's view of the vehicles within the downlink radius of the ego's last fix.
+
+        :param ego_id: the vehicle the view is for (left out of it)
+        :return: one entry per other vehicle within ``downlink.radius_m`` (none without a fix of the ego)
+        """
         ego = self.store.latest(ego_id)
         if ego is None:
             return ()
@@ -283,6 +294,9 @@ class Downlink:
     def step(self, twin: CloudTwin, ego_id: int, now_s: float) -> TwinView | None:
         """Send a view when one is due, deliver those that arrived by ``now_s``.
 
+        :param twin: the twin whose view is sent
+        :param ego_id: the vehicle the views are for
+        :param now_s: twin time [s]
         :return: the newest view received so far (``None`` before the first)
         """
         cfg = self.config
@@ -325,6 +339,7 @@ def lock_store(path: str | Path) -> IO[bytes]:
     """Open (or create) a store file and hold it for one twin: a second twin on the same file, in this process or
     another, would replace what the first writes at its close.
 
+    :param path: the store file (``twin.store.path``)
     :return: the open file, whose closing releases it (on a file system without locks, unlocked, with a warning;
         without ``fcntl``, not POSIX, unlocked)
     :raises ConfigError: one line, when the file cannot be opened or another twin holds it
@@ -355,6 +370,8 @@ def lock_store(path: str | Path) -> IO[bytes]:
 def save_records(path: str | Path, twin: CloudTwin) -> None:
     """Write every driver record and the twin clock to a SQLite file (replacing its content).
 
+    :param path: the SQLite file
+    :param twin: the twin whose records and clock are written
     :raises ConfigError: when the file cannot be written
     """
     try:
@@ -378,7 +395,11 @@ def save_records(path: str | Path, twin: CloudTwin) -> None:
 
 
 def load_records(path: str | Path, twin: CloudTwin) -> None:
-    """Read driver records written by :func:`save_records` (a missing or empty file is an empty memory)."""
+    """Read driver records written by :func:`save_records` (a missing or empty file is an empty memory).
+
+    :param path: the SQLite file
+    :param twin: the twin that takes the records (into its tagger) and the clock
+    """
     if not Path(path).exists():
         return
     try:

@@ -197,14 +197,17 @@ class IntentionInputs:
 
     @staticmethod
     def empty(t_s: float) -> IntentionInputs:
-        """:return: inputs for no vehicle at twin time ``t_s``"""
+        """:param t_s: twin time [s]
+        :return: inputs for no vehicle at twin time ``t_s``"""
         return IntentionInputs(np.zeros(0, dtype=np.int64), t_s, np.zeros(0, dtype=np.int64),
                                np.zeros((0, len(OWN_FEATURES))), np.zeros((0, 2, len(SIDE_FEATURES))),
                                np.zeros((0, 2), dtype=bool))
 
 
 def p_aggressive(rec: DriverRecord | None, prior: float) -> float:
-    """:return: the twin's posterior that a driver is aggressive (``prior`` without a record)"""
+    """:param rec: the tagger's record of the driver (``None``: none yet)
+    :param prior: the prior probability of an aggressive driver [-]
+    :return: the twin's posterior that a driver is aggressive (``prior`` without a record)"""
     if rec is None:
         return prior
     return float(rec.confidence) if rec.tag == AGGRESSIVE else 1.0 - float(rec.confidence)
@@ -310,6 +313,7 @@ def idm_interaction(v: np.ndarray, lead: np.ndarray, gap: np.ndarray, v_lead: np
     :param lead: index of the leader (``-1``: none)
     :param gap: bumper gap to it [m]
     :param v_lead: its speed [m/s]
+    :return: the braking term of each vehicle, not below ``-3 b`` [m/s^2]
     """
     a, b, s0, t_h = IDM
     s_star = np.maximum(s0 + v * t_h + v * (v - v_lead) / (2.0 * math.sqrt(a * b)), 0.0)
@@ -383,7 +387,9 @@ class TwinPicture:
         return len(self.vehicle_ids)
 
     def with_chases(self, vehicle_ids: np.ndarray, p_chase: np.ndarray) -> TwinPicture:
-        """:return: this picture with :attr:`p_chase` for ``vehicle_ids`` (0 for a vehicle not among them, such as
+        """:param vehicle_ids: the vehicles estimated, ``(M,)``
+        :param p_chase: their probability of chasing the ego, ``(M,)`` [-]
+        :return: this picture with :attr:`p_chase` for ``vehicle_ids`` (0 for a vehicle not among them, such as
         the ego)"""
         index = {int(v): k for k, v in enumerate(np.asarray(vehicle_ids).tolist())}
         out = np.zeros(len(self))
@@ -394,7 +400,8 @@ class TwinPicture:
         return replace(self, p_chase=out)
 
     def with_moves(self, table: IntentTable) -> TwinPicture:
-        """:return: this picture with :attr:`p_move` from an intention estimate (0 for a vehicle it did not judge,
+        """:param table: the intention estimate (its first horizon is used)
+        :return: this picture with :attr:`p_move` from an intention estimate (0 for a vehicle it did not judge,
         such as the ego)"""
         p_move = np.zeros((len(self), 2))
         for i, vid in enumerate(self.vehicle_ids.tolist()):
@@ -412,6 +419,7 @@ def twin_picture(store: FixStore, records: dict[int, DriverRecord], now_s: float
     :param records: the tagger's driver records (read only)
     :param now_s: twin time [s]
     :param prior_aggressive: posterior used for a driver without a record [-]
+    :return: the picture (no vehicle when none has enough recent fixes)
     """
     ids, rows, _ = _gather(store, now_s)
     if len(ids) == 0:
@@ -520,7 +528,8 @@ class IntentionModel(Protocol):
         ...
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:return: ``(N, len(horizons_s), 3)``: P(stay), P(left), P(right) within each horizon"""
+        """:param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)``: P(stay), P(left), P(right) within each horizon"""
         ...
 
 
@@ -567,6 +576,9 @@ class LearnedIntention:
         """Read weights written by :func:`save_weights` (``None``: the shipped ones; a name of
         :data:`SHIPPED_WEIGHTS`: those earlier shipped weights).
 
+        :param path: the ``.npz`` file, a name of :data:`SHIPPED_WEIGHTS`, or ``None`` (the shipped weights)
+        :param horizons_s: the horizons to answer for [s]
+        :return: the model
         :raises ValueError: when the file is not intention weights, was made for other inputs, or
             does not cover ``horizons_s``
         """
@@ -592,7 +604,8 @@ class LearnedIntention:
         return LearnedIntention(trained, tuple(horizons_s), arrays["mean"], arrays["scale"], layers, meta)
 
     def utility(self, inputs: IntentionInputs) -> np.ndarray:
-        """:return: ``(N, 2, len(horizons_s))`` utilities of moving to each side within each horizon"""
+        """:param inputs: the model's inputs
+        :return: ``(N, 2, len(horizons_s))`` utilities of moving to each side within each horizon"""
         n = len(inputs)
         x = np.concatenate([np.repeat(inputs.own[:, None, :], 2, axis=1), inputs.side], axis=2).reshape(2 * n, -1)
         a = (x - self.mean) / self.scale
@@ -610,7 +623,8 @@ class LearnedIntention:
         return np.stack([np.interp(self.horizons_s, trained, e) for e in np.eye(len(trained))])
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
+        """:param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         return choice_probabilities(self.utility(inputs), inputs.side_ok)
@@ -618,7 +632,15 @@ class LearnedIntention:
 
 def save_weights(path: str | Path, horizons_s: tuple[float, ...], mean: np.ndarray, scale: np.ndarray,
                  layers: list[tuple[np.ndarray, np.ndarray]], meta: dict[str, str] | None = None) -> None:
-    """Write the learned model's weights as a ``.npz`` of plain arrays (no pickles)."""
+    """Write the learned model's weights as a ``.npz`` of plain arrays (no pickles).
+
+    :param path: the ``.npz`` file to write (its folder is created)
+    :param horizons_s: the horizons the network was trained for [s]
+    :param mean: input normalisation, ``(F,)``
+    :param scale: input normalisation, ``(F,)``
+    :param layers: ``(W, b)`` of each layer, ``W`` as ``(in, out)``, the last with one output per horizon
+    :param meta: how the weights were made
+    """
     write_weights(path, {
         "horizons_s": np.asarray(horizons_s, dtype=np.float64), "mean": np.asarray(mean, dtype=np.float64),
         "scale": np.asarray(scale, dtype=np.float64),
@@ -650,7 +672,8 @@ class PhysicsIntention:
     moving_mps: float = 0.5
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
+        """:param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         off = inputs.side[:, :, SIDE_FEATURES.index("offset_05")]
@@ -679,6 +702,8 @@ _erf = np.vectorize(math.erf, otypes=[float])
 def make_model(config: IntentionConfig) -> IntentionModel:
     """The model a ``twin.intention`` section asks for.
 
+    :param config: the ``twin.intention`` section
+    :return: the physics or the learned model, for ``config.horizons_s``
     :raises ValueError: when learned weights cannot be read or do not fit
     """
     horizons = tuple(config.horizons_s)
@@ -715,7 +740,8 @@ class IntentTable:
         return vehicle_id in self._index
 
     def intents(self, vehicle_id: int) -> tuple[LaneChangeIntent, ...]:
-        """:return: the vehicle's intents, shortest horizon first (empty when it was not judged)"""
+        """:param vehicle_id: the vehicle
+        :return: the vehicle's intents, shortest horizon first (empty when it was not judged)"""
         made = self._made.get(vehicle_id)
         if made is not None:
             return made
@@ -745,6 +771,7 @@ class IntentTable:
     def arrays(self, horizon_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Everything at the horizon nearest ``horizon_s``, as arrays (for evaluation).
 
+        :param horizon_s: the horizon asked for [s]
         :return: vehicle ids, p_change, target lane, p_target, each ``(N,)``
         """
         k = int(np.argmin([abs(h - horizon_s) for h in self.horizons_s]))
@@ -772,6 +799,10 @@ class IntentionEstimator:
         self.model = make_model(config)
 
     def estimate(self, store: FixStore, records: dict[int, DriverRecord], now_s: float, ego_id: int = 0) -> IntentTable:
-        """:return: the intents of every vehicle with enough recent fixes at twin time ``now_s``"""
+        """:param store: the cloud's fix histories
+        :param records: the tagger's driver records (read only)
+        :param now_s: twin time [s]
+        :param ego_id: the ego's id (a neighbour in the inputs, not judged itself)
+        :return: the intents of every vehicle with enough recent fixes at twin time ``now_s``"""
         inputs = intention_inputs(store, records, self.road, now_s, ego_id, self.prior_aggressive)
         return IntentTable(inputs, self.model.predict(inputs), tuple(self.config.horizons_s))

@@ -67,7 +67,10 @@ class FixStore:
         self._tracks: dict[int, _Track] = {}
 
     def add(self, fixes: Iterable[GnssFix]) -> set[int]:
-        """Insert fixes; :return: the ids of the vehicles that got new data."""
+        """Insert fixes; :return: the ids of the vehicles that got new data.
+
+        :param fixes: the fixes that arrived (in any order)
+        """
         touched: set[int] = set()
         for f in fixes:
             track = self._tracks.get(f.vehicle_id)
@@ -87,7 +90,10 @@ class FixStore:
             track.drop_first(cut)
 
     def drop_older_than(self, t_s: float) -> None:
-        """Forget vehicles whose newest fix is older than ``t_s`` [s] (they left)."""
+        """Forget vehicles whose newest fix is older than ``t_s`` [s] (they left).
+
+        :param t_s: the cut-off time [s]
+        """
         for vid in [v for v, tr in self._tracks.items() if tr.times[-1] < t_s]:
             del self._tracks[vid]
 
@@ -110,13 +116,15 @@ class FixStore:
         return sum(len(tr.times) for tr in self._tracks.values())
 
     def latest(self, vehicle_id: int) -> GnssFix | None:
-        """:return: the newest fix of a vehicle, or ``None``."""
+        """:param vehicle_id: the vehicle
+        :return: the newest fix of a vehicle, or ``None``."""
         track = self._tracks.get(vehicle_id)
         return track.fixes[-1] if track is not None and track.fixes else None
 
     def history(self, vehicle_id: int) -> np.ndarray:
         """The history as an array of rows ``(t_s, x_m, y_m, speed_mps, heading_rad)``, oldest first.
 
+        :param vehicle_id: the vehicle (one without a history gets an empty ``(0, 5)`` array)
         :return: a read-only array; its values never change (later fixes go elsewhere)
         """
         track = self._tracks.get(vehicle_id)

@@ -58,7 +58,8 @@ class HighwayMap:
     first_lane_y_m: float = 0.0
 
     def lane_of(self, y_m: np.ndarray | float) -> np.ndarray:
-        """:return: the index of the lane whose centre is nearest to ``y_m``."""
+        """:param y_m: lateral position(s) [m]
+        :return: the index of the lane whose centre is nearest to ``y_m``."""
         k = np.rint((np.asarray(y_m, dtype=float) - self.first_lane_y_m) / self.lane_width_m)
         return np.clip(k, 0, self.n_lanes - 1).astype(int)
 
@@ -69,11 +70,13 @@ class HighwayMap:
     def lane_centre_y_m(self, lane: np.ndarray) -> np.ndarray: ...
 
     def lane_centre_y_m(self, lane: np.ndarray | int) -> np.ndarray | float:
-        """:return: the lateral position of lane ``lane``'s centre [m] (an array for an array of lanes)."""
+        """:param lane: a lane index, or an array of them
+        :return: the lateral position of lane ``lane``'s centre [m] (an array for an array of lanes)."""
         return self.first_lane_y_m + lane * self.lane_width_m
 
     def lane_of_one(self, y_m: float) -> int:
-        """:return: ``int(lane_of(y_m))`` for one finite position, without numpy's per-call cost
+        """:param y_m: lateral position [m]
+        :return: ``int(lane_of(y_m))`` for one finite position, without numpy's per-call cost
         (``round`` rounds half to even, as ``np.rint``)."""
         k = (float(y_m) - self.first_lane_y_m) / self.lane_width_m
         if k != k or abs(k) > 1e9:  # NaN or absurd: numpy's answer
@@ -107,7 +110,11 @@ class LaneChange:
 def median(a: np.ndarray) -> float:
     """``float(np.median(a))`` of a non-empty 1-D array, the same value (the middle element, or
     the mean of the two middle ones; NaN if any is NaN) at a tenth of ``np.median``'s cost,
-    which the twin pays several times per vehicle and update."""
+    which the twin pays several times per vehicle and update.
+
+    :param a: the values, 1-D, not empty
+    :return: their median
+    """
     n = len(a)
     k = n // 2
     if n % 2:
@@ -145,6 +152,10 @@ def boundary_crossings(
 ) -> list[tuple[float, int, int]]:
     """Lane changes of a smoothed lateral track.
 
+    :param t_s: sample times, sorted [s]
+    :param y_smooth: smoothed lateral positions [m]
+    :param road: the map
+    :param hysteresis_m: how far past a lane boundary the track must go for a crossing to count [m]
     :return: ``(t_cross_s, from_lane, to_lane)`` for each crossing confirmed by the hysteresis
     """
     if len(t_s) == 0:
@@ -214,6 +225,13 @@ def accepted_gap_s(
 ) -> float:
     """Time gap the new follower is left with, from the other vehicles' own fixes.
 
+    :param store: the fix store
+    :param vehicle_id: the vehicle that changes lane
+    :param t_s: time of the crossing [s]
+    :param x_m: its position along the road then [m]
+    :param to_lane: the lane it moves to
+    :param road: the map
+    :param vehicle_length_m: length assumed for the bumper gap [m]
     :return: bumper gap / follower speed [s] for the nearest vehicle behind in ``to_lane``
         at time ``t_s``; ``inf`` when no connected vehicle was there
     """
@@ -322,7 +340,11 @@ _GAP_CAP_S = 3.0
 
 
 def evidence_features(rec: DriverRecord) -> np.ndarray:
-    """The evidence model's inputs of one driver (:data:`EVIDENCE_FEATURES`) from its record."""
+    """The evidence model's inputs of one driver (:data:`EVIDENCE_FEATURES`) from its record.
+
+    :param rec: the driver's record
+    :return: ``(len(EVIDENCE_FEATURES),)`` features
+    """
     minutes = max(rec.observed_s, 1.0) / 60.0
     n = max(rec.n_samples, 1)
     mean_v = rec.speed_sum / n
@@ -360,6 +382,8 @@ class EvidenceModel:
     def load(path: str | Path | None = None) -> EvidenceModel:
         """Read weights written by :meth:`save` (``None``: the shipped file).
 
+        :param path: the JSON file (``None``: the shipped one)
+        :return: the model
         :raises ConfigError: one line, when the file is missing, not JSON, or names other features
         """
         file = Path(__file__).with_name(EVIDENCE_WEIGHTS_FILE) if path is None else Path(path)
@@ -379,7 +403,11 @@ class EvidenceModel:
         return model
 
     def save(self, path: str | Path, **meta: object) -> None:
-        """Write the weights (and ``meta``, e.g. the training seeds) as JSON."""
+        """Write the weights (and ``meta``, e.g. the training seeds) as JSON.
+
+        :param path: the JSON file to write (its folder is created)
+        :param meta: entries written beside the weights
+        """
         d = {"features": list(EVIDENCE_FEATURES), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
              "weights": self.weights.tolist(), "bias": self.bias, **meta}
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -438,7 +466,9 @@ class Tagger:
         """Optional callback, called with (vehicle_id, lane change) for every judged change"""
 
     def record(self, vehicle_id: int, now_s: float) -> DriverRecord:
-        """:return: the record of a vehicle, created (with the prior's tag) when new."""
+        """:param vehicle_id: the vehicle
+        :param now_s: twin time [s] (a new record's ``first_seen_s``)
+        :return: the record of a vehicle, created (with the prior's tag) when new."""
         rec = self.records.get(vehicle_id)
         if rec is None:
             rec = self.records[vehicle_id] = DriverRecord(vehicle_id, first_seen_s=now_s)

@@ -65,7 +65,10 @@ class Uplink:
         self._phase: dict[int, float] = {}
 
     def forget(self, vehicle_id: int) -> None:
-        """Drop a vehicle's schedule (it left the road)."""
+        """Drop a vehicle's schedule (it left the road).
+
+        :param vehicle_id: the vehicle
+        """
         self._phase.pop(vehicle_id, None)
 
     def sample(self, t_prev_s: float, t_now_s: float, states: list[VehicleState]) -> list[GnssFix]:

@@ -14,7 +14,13 @@ Layers = tuple[tuple[np.ndarray, np.ndarray], ...]
 
 def write_weights(path: str | Path, arrays: dict[str, np.ndarray], layers: list[tuple[np.ndarray, np.ndarray]],
                   meta: dict[str, str] | None = None) -> None:
-    """Write ``arrays``, then each layer as ``W{i}`` / ``b{i}`` (float64) and each ``meta`` entry as ``meta_{key}``."""
+    """Write ``arrays``, then each layer as ``W{i}`` / ``b{i}`` (float64) and each ``meta`` entry as ``meta_{key}``.
+
+    :param path: the ``.npz`` file to write (its folder is created)
+    :param arrays: arrays written under their own names
+    :param layers: ``(W, b)`` of each layer, ``W`` as ``(in, out)``
+    :param meta: how the weights were made (``None``: nothing)
+    """
     out = dict(arrays)
     for i, (w, b) in enumerate(layers):
         out[f"W{i}"], out[f"b{i}"] = np.asarray(w, dtype=np.float64), np.asarray(b, dtype=np.float64)
@@ -28,6 +34,7 @@ def write_weights(path: str | Path, arrays: dict[str, np.ndarray], layers: list[
 def read_weights(path: Path, what: str) -> tuple[dict[str, np.ndarray], Layers, dict[str, str]]:
     """Read a file of :func:`write_weights` with ``allow_pickle=False``.
 
+    :param path: the ``.npz`` file
     :param what: what the weights are, for the error (e.g. ``"chase"``)
     :return: every array by name, the layers and the meta entries
     :raises ValueError: when the file cannot be read as such a file (one line naming it)

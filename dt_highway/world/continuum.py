@@ -116,6 +116,7 @@ class DriverProfile:
         :param params: the driver type's parameters (``traffic.normal`` / ``traffic.aggressive``)
         :param desired_speed_mps: the speed drawn for this driver [m/s]
         :param cut_in_rate_per_min: ``traffic.cut_in_rate_per_min`` for an aggressive driver, else 0 [1/min]
+        :return: the driver's profile
         """
         return cls(
             desired_speed_mps=desired_speed_mps,
@@ -182,6 +183,7 @@ def profile_of(traits: dict[str, np.ndarray], i: int, lateral_settle_m: float) -
     :param traits: the parameters' values by name
     :param i: the driver's index in the arrays
     :param lateral_settle_m: the lateral controller leaves its speed limit this far from the lane centre [m]
+    :return: the driver's profile (lateral time constant ``lateral_settle_m / max_lateral_speed_mps``)
     """
     v = {name: float(values[i]) for name, values in traits.items()}
     return DriverProfile(

@@ -60,6 +60,9 @@ def _names(names: list[str]) -> str:
 class FastKinematicObservation(KinematicObservation):
     """highway-env's ``Kinematics`` observation (same options, same values), built with numpy.
 
+    :param env: the environment observed
+    :param kwargs: highway-env's ``KinematicObservation`` options (``features``, ``vehicles_count``,
+        ``features_range``, ``absolute``, ``order``, ``normalize``, ``see_behind``, ...)
     :raises ValueError: if a feature is named twice (pandas would give the column twice)
     :raises ConfigError: at the first observation, for a feature or ``features_range`` key that is
         not a column of the vehicles' ``to_dict()`` rows
@@ -82,7 +85,10 @@ class FastKinematicObservation(KinematicObservation):
 
     def observed(self) -> list[RoadObject]:
         """The observer and the objects of the observation's rows, in row order (highway-env's
-        ``close_objects_to`` with this observation's options)."""
+        ``close_objects_to`` with this observation's options).
+
+        :return: the observer vehicle first, then the observed objects
+        """
         ego = self.observer_vehicle
         close = self.env.road.close_objects_to(
             ego, self.env.PERCEPTION_DISTANCE, count=self.vehicles_count - 1, see_behind=self.see_behind,

@@ -83,13 +83,22 @@ class FastRoadNetwork(RoadNetwork):
 
     @classmethod
     def of(cls, network: RoadNetwork) -> FastRoadNetwork:
-        """The same network (the same graph object) with the fast lookup."""
+        """The same network (the same graph object) with the fast lookup.
+
+        :param network: a highway-env road network
+        :return: a network sharing ``network``'s graph
+        """
         fast = cls()
         fast.graph = network.graph
         return fast
 
     def add_lane(self, _from: str, _to: str, lane: AbstractLane) -> None:
-        """Add a lane (highway-env's), and forget the lane table."""
+        """Add a lane (highway-env's), and forget the lane table.
+
+        :param _from: the node where the lane starts
+        :param _to: the node where the lane ends
+        :param lane: the lane geometry
+        """
         super().add_lane(_from, _to, lane)
         self._lanes = None
 
@@ -110,7 +119,12 @@ class FastRoadNetwork(RoadNetwork):
         return rows
 
     def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
-        """The lane closest to a position (and heading), as highway-env finds it."""
+        """The lane closest to a position (and heading), as highway-env finds it.
+
+        :param position: the position ``(x, y)`` [m]
+        :param heading: the heading [rad] (``None``: by distance alone)
+        :return: the closest lane's index ``(from, to, id)``
+        """
         if self._lanes is None:
             self._lanes = self._lane_table()
         if not self._lanes:
@@ -134,7 +148,12 @@ class FastRoadNetwork(RoadNetwork):
 
 
 class FastRoad(Road):
-    """highway-env's road with vectorised neighbour search and a collision broad phase."""
+    """highway-env's road with vectorised neighbour search and a collision broad phase.
+
+    :param args: highway-env's ``Road`` arguments, by position (``network, vehicles, road_objects, np_random,
+        record_history``)
+    :param kwargs: the same by name (and ``neighbour_vehicles_connected_lanes``)
+    """
 
     _in_act = False
     _index: _SearchIndex | None = None
@@ -193,6 +212,10 @@ class FastRoad(Road):
         A per-lane index sorted by longitudinal position answers it by bisection: the
         leader is the nearest item at or ahead of the vehicle (the last of equals, as
         highway-env's ``<=`` keeps it), the follower the nearest behind (the first of equals).
+
+        :param vehicle: the vehicle whose neighbours are searched
+        :param lane_index: the lane searched (``None``: the vehicle's own)
+        :return: ``(leader, follower)``, each ``None`` when there is none
         """
         lane_index = lane_index or vehicle.lane_index
         if not lane_index:
@@ -245,6 +268,10 @@ class FastRoad(Road):
         highway-env's own early exit (``RoadObject._is_colliding``), for all pairs at once:
         no contact when the centres are farther apart than the half diagonals plus the
         checking vehicle's travel in the step [m], plus :data:`BROAD_PHASE_MARGIN_M`.
+
+        :param items: the vehicles and objects (``vehicles + objects``)
+        :param dt: the simulation step [s]
+        :return: ``(N, N)`` bool, ``True`` where the pair may touch
         """
         pos = np.array([o.position for o in items], dtype=float).reshape(-1, 2)
         half_diag = np.array([o.diagonal / 2 for o in items])
@@ -253,7 +280,10 @@ class FastRoad(Road):
         return dist <= half_diag[:, None] + half_diag[None, :] + travel[:, None] + BROAD_PHASE_MARGIN_M
 
     def step(self, dt: float) -> None:
-        """Move every vehicle, then handle the collisions of the pairs that may touch."""
+        """Move every vehicle, then handle the collisions of the pairs that may touch.
+
+        :param dt: the simulation step [s]
+        """
         for vehicle in self.vehicles:
             vehicle.step(dt)
         items = self.vehicles + self.objects

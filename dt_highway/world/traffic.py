@@ -43,17 +43,20 @@ EGO_ID = 0
 
 
 def vehicle_id(vehicle: Vehicle) -> int:
-    """:return: the stable integer id of a vehicle (ego 0), or -1 for a foreign object."""
+    """:param vehicle: a vehicle or other road object
+    :return: the stable integer id of a vehicle (ego 0), or -1 for a foreign object."""
     return int(getattr(vehicle, "dt_id", -1))
 
 
 def driver_type(vehicle: Vehicle) -> str | None:
-    """:return: the ground-truth driver type of an NPC, ``None`` for the ego. Evaluation only."""
+    """:param vehicle: a vehicle on the road
+    :return: the ground-truth driver type of an NPC, ``None`` for the ego. Evaluation only."""
     return getattr(vehicle, "dt_driver_type", None)
 
 
 def aggressiveness(vehicle: Vehicle) -> float | None:
-    """:return: the latent aggressiveness of a continuum driver's vehicle, ``None`` for the ego and in
+    """:param vehicle: a vehicle on the road
+    :return: the latent aggressiveness of a continuum driver's vehicle, ``None`` for the ego and in
         the two-class world. Evaluation only."""
     return getattr(vehicle, "dt_aggressiveness", None)
 
@@ -146,6 +149,13 @@ class TypedDriverVehicle(FastIDMVehicle):
     ``-offset / lateral_time_constant_s`` clipped to ``max_lateral_speed_mps``, turned into a
     heading reference, tracked by a proportional heading loop and a kinematic bicycle
     inversion. The limit on lateral speed is what makes a lane change gentle or sudden.
+
+    :param road: the road the vehicle drives on
+    :param position: initial position [m]
+    :param heading: initial heading [rad]
+    :param speed: initial speed [m/s]
+    :param kwargs: highway-env's ``IDMVehicle`` options (``target_lane_index``, ``target_speed``, ``route``,
+        ``enable_lane_change``, ``timer``)
     """
 
     MAX_LATERAL_SPEED_MPS = 1.0
@@ -160,7 +170,10 @@ class TypedDriverVehicle(FastIDMVehicle):
         self.cut_in: CutInPolicy | None = None
 
     def apply_params(self, params: DriverParams | DriverProfile) -> None:
-        """Set this vehicle's IDM/MOBIL gains and lateral speed limit from a driver's parameters."""
+        """Set this vehicle's IDM/MOBIL gains and lateral speed limit from a driver's parameters.
+
+        :param params: a driver type's preset (two-class world) or a driver's own profile
+        """
         self.TIME_WANTED = params.time_headway_s
         self.DISTANCE_WANTED = params.min_gap_m
         self.COMFORT_ACC_MAX = params.comfort_acc_mps2
@@ -178,6 +191,7 @@ class TypedDriverVehicle(FastIDMVehicle):
     def steering_control(self, target_lane_index: LaneIndex) -> float:
         """Steer toward the target lane with this driver's lateral gain and lateral speed limit.
 
+        :param target_lane_index: the lane to follow
         :return: the steering angle [rad]
         """
         lane = self.road.network.get_lane(target_lane_index)
@@ -200,7 +214,10 @@ class TypedDriverVehicle(FastIDMVehicle):
         super().change_lane_policy()
 
     def act(self, action: dict | str | None = None) -> None:
-        """Try a cut-in when one is due, then highway-env's IDM and MOBIL, then a dangerous cut-in's brake."""
+        """Try a cut-in when one is due, then highway-env's IDM and MOBIL, then a dangerous cut-in's brake.
+
+        :param action: unused (as in highway-env's ``IDMVehicle``: the vehicle decides for itself)
+        """
         if self.cut_in is not None and not self.crashed:
             self.cut_in.maybe_cut_in(self)
         super().act(action)
@@ -210,7 +227,10 @@ class TypedDriverVehicle(FastIDMVehicle):
                 self.action["acceleration"] = min(self.action["acceleration"], brake)
 
     def step(self, dt: float) -> None:
-        """Advance the driver's clock and the vehicle by ``dt`` [s]."""
+        """Advance the driver's clock and the vehicle by ``dt`` [s].
+
+        :param dt: the time step [s]
+        """
         self.clock_s += dt
         super().step(dt)
 
@@ -293,11 +313,18 @@ class CutInPolicy:
     """A dangerous cut-in's victim drives within this of the cutting driver's speed [m/s]"""
 
     def committed(self, now_s: float) -> bool:
-        """Whether a dangerous cut-in is under way (lane change, brake, then ``KEEP_LANE_S``): no MOBIL then."""
+        """Whether a dangerous cut-in is under way (lane change, brake, then ``KEEP_LANE_S``): no MOBIL then.
+
+        :param now_s: the driver's clock [s]
+        :return: whether the driver is committed to the cut-in
+        """
         return self.brake is not None or now_s < self.committed_until_s
 
     def schedule(self, now_s: float) -> None:
-        """Draw the time of the next attempt after ``now_s`` [s] (and, with dangerous cut-ins on, its style)."""
+        """Draw the time of the next attempt after ``now_s`` [s] (and, with dangerous cut-ins on, its style).
+
+        :param now_s: the driver's clock [s]
+        """
         if self.rate_per_min <= 0:
             self.next_attempt_s = float("inf")
         else:
@@ -317,7 +344,11 @@ class CutInPolicy:
         return self.dangerous_gap_m if self.dangerous else self.gap_m
 
     def brake_acceleration(self, me: TypedDriverVehicle) -> float | None:
-        """The deceleration command of a dangerous cut-in's brake at this step [m/s^2], ``None`` when none is due."""
+        """The deceleration command of a dangerous cut-in's brake at this step [m/s^2], ``None`` when none is due.
+
+        :param me: the driver this policy drives
+        :return: ``-brake_mps2`` [m/s^2] while the brake is due, else ``None``
+        """
         plan = self.brake
         if plan is None:
             return None
@@ -447,6 +478,7 @@ def cut_in_policy(
     :param rng: the policy's random generator
     :param on_cut_in: called at each cut-in (the traffic's event log)
     :param on_lane_hop: called at each lane hop
+    :return: the policy (call :meth:`CutInPolicy.schedule` to schedule its first attempt)
     """
     return CutInPolicy(
         rate_per_min=rate_per_min,
@@ -518,7 +550,16 @@ class TrafficManager:
     def make_vehicle(
         self, road: Road, driver: Driver, lane_index: LaneIndex, x_m: float, speed_mps: float
     ) -> TypedDriverVehicle:
-        """Create one NPC of ``driver`` on ``lane_index`` at longitudinal position ``x_m``."""
+        """Create one NPC of ``driver`` on ``lane_index`` at longitudinal position ``x_m``.
+
+        :param road: the road it will drive on
+        :param driver: the population member who drives it
+        :param lane_index: its lane
+        :param x_m: its longitudinal position on the lane [m]
+        :param speed_mps: its initial speed [m/s]
+        :return: the vehicle, with its driver's parameters (and a cut-in policy at a positive rate); the caller
+            puts it on the road
+        """
         lane = road.network.get_lane(lane_index)
         v = TypedDriverVehicle(
             road, lane.position(x_m, 0.0), lane.heading_at(x_m), speed_mps,
@@ -554,7 +595,10 @@ class TrafficManager:
         return sorted(self.population.drivers.keys() - on_road - self._left_at.keys())
 
     def remove(self, v: Vehicle) -> None:
-        """Note that ``v`` was taken off the road by the env; a driver re-enters at the far edge behind."""
+        """Note that ``v`` was taken off the road by the env; a driver re-enters at the far edge behind.
+
+        :param v: the vehicle taken off the road
+        """
         self._leave(v)
         self._owed_behind += 1
 
@@ -565,7 +609,12 @@ class TrafficManager:
         self.events.append(TrafficEvent(self.time_s, "despawn", vid, driver_type=driver_type(v)))
 
     def populate(self, road: Road, ego: Vehicle, count: int) -> None:
-        """Place ``count`` NPCs between ``spawn_behind_m`` behind and ``spawn_ahead_m`` ahead of the ego."""
+        """Place ``count`` NPCs between ``spawn_behind_m`` behind and ``spawn_ahead_m`` ahead of the ego.
+
+        :param road: the road the NPCs are added to
+        :param ego: the ego vehicle
+        :param count: how many NPCs (at most the drivers free to enter)
+        """
         lanes = road.network.lanes_list()
         lane_indices = [road.network.get_closest_lane_index(lane.position(0, 0)) for lane in lanes]
         free = self._free_drivers(road)
@@ -590,7 +639,11 @@ class TrafficManager:
 
     # ------------------------------------------------------------------ upkeep
     def recycle(self, road: Road, ego: Vehicle) -> None:
-        """Remove far or long-crashed NPCs and re-enter as many drivers at the far edges."""
+        """Remove far or long-crashed NPCs and re-enter as many drivers at the far edges.
+
+        :param road: the road
+        :param ego: the ego vehicle
+        """
         if not self.config.recycle:
             return
         ex = ego.position[0]

@@ -34,12 +34,23 @@ _PI = math.pi
 
 
 def clip(x: float, lo: float, hi: float) -> float:
-    """``np.clip`` for one float: the same value (NaN stays NaN) without numpy's per-call cost."""
+    """``np.clip`` for one float: the same value (NaN stays NaN) without numpy's per-call cost.
+
+    :param x: the value
+    :param lo: lower bound
+    :param hi: upper bound
+    :return: ``x`` clipped to ``[lo, hi]``
+    """
     return lo if x < lo else hi if x > hi else x
 
 
 def not_zero(x: float, eps: float = 1e-2) -> float:
-    """highway-env's ``utils.not_zero``: ``x``, or ``+-eps`` when ``|x| <= eps``."""
+    """highway-env's ``utils.not_zero``: ``x``, or ``+-eps`` when ``|x| <= eps``.
+
+    :param x: the value
+    :param eps: smallest magnitude returned
+    :return: ``x``, or ``eps`` with ``x``'s sign (``+eps`` for 0) when ``|x| <= eps``
+    """
     if abs(x) > eps:
         return x
     return eps if x >= 0 else -eps
@@ -47,7 +58,11 @@ def not_zero(x: float, eps: float = 1e-2) -> float:
 
 def wrap_to_pi(x: float) -> float:
     """An angle wrapped to [-pi, pi) [rad] (highway-env's ``utils.wrap_to_pi``; Python's ``%``
-    is numpy's ``remainder`` for floats)."""
+    is numpy's ``remainder`` for floats).
+
+    :param x: the angle [rad]
+    :return: the same angle in [-pi, pi) [rad]
+    """
     return ((x + _PI) % (2 * _PI)) - _PI
 
 
@@ -64,7 +79,13 @@ def _lane_floats(lane: StraightLane) -> tuple[float, float, float, float, float,
 
 
 def local_coordinates(lane: AbstractLane, x: float, y: float) -> tuple[float, float]:
-    """A position's (longitudinal, lateral) coordinates on a lane [m]."""
+    """A position's (longitudinal, lateral) coordinates on a lane [m].
+
+    :param lane: the lane
+    :param x: the position's x [m]
+    :param y: the position's y [m]
+    :return: ``(longitudinal, lateral)`` [m]
+    """
     if type(lane) is StraightLane:
         sx, sy, dx, dy, lx, ly = _lane_floats(lane)
         d0, d1 = x - sx, y - sy
@@ -74,7 +95,13 @@ def local_coordinates(lane: AbstractLane, x: float, y: float) -> tuple[float, fl
 
 
 def longitudinal(lane: AbstractLane, x: float, y: float) -> float:
-    """A position's longitudinal coordinate on a lane [m]."""
+    """A position's longitudinal coordinate on a lane [m].
+
+    :param lane: the lane
+    :param x: the position's x [m]
+    :param y: the position's y [m]
+    :return: the longitudinal coordinate [m]
+    """
     if type(lane) is StraightLane:
         sx, sy, dx, dy, _, _ = _lane_floats(lane)
         return (x - sx) * dx + (y - sy) * dy
@@ -104,7 +131,11 @@ def _stock(cls: type[RoadObject]) -> tuple[bool, bool, bool, bool, bool]:
 
 
 def velocity(obj: RoadObject) -> tuple[float, float]:
-    """An object's velocity ``speed * (cos heading, sin heading)`` [m/s]."""
+    """An object's velocity ``speed * (cos heading, sin heading)`` [m/s].
+
+    :param obj: the road object
+    :return: ``(vx, vy)`` [m/s] (the object's own ``velocity`` when its class overrides it)
+    """
     if (_STOCK.get(type(obj)) or _stock(type(obj)))[1]:
         speed, heading = obj.speed, obj.heading
         return speed * math.cos(heading), speed * math.sin(heading)
@@ -113,7 +144,12 @@ def velocity(obj: RoadObject) -> tuple[float, float]:
 
 
 def lane_distance(obj: RoadObject, other: RoadObject) -> float:
-    """``obj.lane_distance_to(other)``: the signed distance along ``obj``'s lane [m]."""
+    """``obj.lane_distance_to(other)``: the signed distance along ``obj``'s lane [m].
+
+    :param obj: the object whose lane the distance is measured along
+    :param other: the object the distance is measured to
+    :return: ``other``'s longitudinal position minus ``obj``'s [m]
+    """
     if not (_STOCK.get(type(obj)) or _stock(type(obj)))[2]:
         return float(obj.lane_distance_to(other))
     lane = obj.lane
@@ -134,6 +170,11 @@ def surely_apart(a: RoadObject, b: RoadObject, dt: float, margin: float) -> bool
     each rectangle projected from its centre and half extents: a pair counts as apart only
     if some axis separates it by more than ``margin`` [m] now and some axis does after the
     sweep. :return: ``False`` when in doubt (the caller then runs highway-env's check).
+
+    :param a: the object whose collision check would run (``a.handle_collisions(b)``)
+    :param b: the other object
+    :param dt: the simulation step [s]
+    :param margin: how far an axis must separate the pair [m]
     """
     fa, fb = _stock(type(a)), _stock(type(b))
     # both rectangles and velocities are highway-env's, and so is the check ``a`` would run
@@ -180,7 +221,10 @@ class FastIDMVehicle(IDMVehicle):
     impact: np.ndarray | None
 
     def act(self, action: dict | str | None = None) -> None:
-        """Decide steering [rad] and acceleration [m/s2] (MOBIL for the lane, IDM for the speed)."""
+        """Decide steering [rad] and acceleration [m/s2] (MOBIL for the lane, IDM for the speed).
+
+        :param action: unused (as in highway-env's ``IDMVehicle``: the vehicle decides for itself)
+        """
         if self.crashed:
             return
         self.follow_road()
@@ -204,7 +248,13 @@ class FastIDMVehicle(IDMVehicle):
 
     def acceleration(self, ego_vehicle: ControlledVehicle, front_vehicle: Vehicle = None,
                      rear_vehicle: Vehicle = None) -> float:
-        """IDM acceleration of ``ego_vehicle`` behind ``front_vehicle``, with this driver's gains [m/s2]."""
+        """IDM acceleration of ``ego_vehicle`` behind ``front_vehicle``, with this driver's gains [m/s2].
+
+        :param ego_vehicle: the vehicle whose acceleration is computed
+        :param front_vehicle: its leader (``None``: free road)
+        :param rear_vehicle: its follower (unused, as in highway-env)
+        :return: the acceleration [m/s2] (0 when ``ego_vehicle`` is not a highway-env ``Vehicle``)
+        """
         if not ego_vehicle or not (_STOCK.get(type(ego_vehicle)) or _stock(type(ego_vehicle)))[0]:
             return 0
         target = getattr(ego_vehicle, "target_speed", 0)
@@ -220,7 +270,14 @@ class FastIDMVehicle(IDMVehicle):
         return acc
 
     def desired_gap(self, ego_vehicle: Vehicle, front_vehicle: Vehicle = None, projected: bool = True) -> float:
-        """IDM's desired gap ``s* = s0 + v T + v dv / (2 sqrt(a b))`` [m]."""
+        """IDM's desired gap ``s* = s0 + v T + v dv / (2 sqrt(a b))`` [m].
+
+        :param ego_vehicle: the following vehicle
+        :param front_vehicle: its leader
+        :param projected: whether ``dv`` is the closing velocity projected on the ego's heading (else the
+            difference of the two speeds)
+        :return: the desired gap [m]
+        """
         speed = ego_vehicle.speed
         if not projected:
             dv = speed - front_vehicle.speed
@@ -239,7 +296,12 @@ class FastIDMVehicle(IDMVehicle):
         return self.DISTANCE_WANTED + speed * self.TIME_WANTED + speed * dv / (2 * math.sqrt(ab))
 
     def lane_distance_to(self, other: RoadObject, lane: AbstractLane = None) -> float:
-        """Signed distance to another object along a lane (this vehicle's by default) [m]."""
+        """Signed distance to another object along a lane (this vehicle's by default) [m].
+
+        :param other: the object the distance is measured to
+        :param lane: the lane measured along (``None``: this vehicle's)
+        :return: ``other``'s longitudinal position minus this vehicle's [m] (NaN without ``other``)
+        """
         if not other:
             return math.nan
         lane = lane or self.lane
@@ -249,7 +311,11 @@ class FastIDMVehicle(IDMVehicle):
 
     def steering_control(self, target_lane_index: tuple) -> float:
         """highway-env's lane-following steering: lateral offset -> lateral speed -> heading
-        -> heading rate -> steering angle [rad]."""
+        -> heading rate -> steering angle [rad].
+
+        :param target_lane_index: the lane to follow
+        :return: the steering angle [rad]
+        """
         lane = self.road.network.get_lane(target_lane_index)
         x, y = self.position.tolist()
         s, r = local_coordinates(lane, x, y)
@@ -263,7 +329,10 @@ class FastIDMVehicle(IDMVehicle):
 
     def step(self, dt: float) -> None:
         """Advance the decision timer and the kinematic bicycle by ``dt`` [s] (highway-env's
-        ``Vehicle.step``: clip the action, move, apply a collision impact, update the lane)."""
+        ``Vehicle.step``: clip the action, move, apply a collision impact, update the lane).
+
+        :param dt: the time step [s]
+        """
         self.timer += dt
         action = self.action
         speed = self.speed

@@ -69,14 +69,21 @@ class Architecture:
         return (-(-self.height_px // PAD_TO) * PAD_TO, -(-self.width_px // PAD_TO) * PAD_TO)
 
     def to_dict(self) -> dict:
-        """A dict of plain values (safe for ``torch.load(weights_only=True)``)."""
+        """A dict of plain values (safe for ``torch.load(weights_only=True)``).
+
+        :return: the fields by name, ``channels`` as a list
+        """
         d = asdict(self)
         d["channels"] = list(self.channels)
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> Architecture:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        :param d: a dict as :meth:`to_dict` makes it
+        :return: the architecture
+        """
         d = dict(d)
         d["channels"] = tuple(int(c) for c in d["channels"])
         return cls(**d)
@@ -113,7 +120,10 @@ class PointDetector(nn.Module):
         nn.init.constant_(bias, -math.log((1 - 0.01) / 0.01))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """:param x: ``(B, C, H, W)`` normalised input (see :func:`to_input`), H and W multiples of 32."""
+        """:param x: ``(B, C, H, W)`` normalised input (see :func:`to_input`), H and W multiples of 32.
+
+        :return: heatmap logits ``(B, 1, H / 4, W / 4)`` and edge distances ``(B, 4, H / 4, W / 4)`` [px]
+        """
         x4 = self.s4(self.stem(x))
         x8 = self.s8(x4)
         x16 = self.s16(x8)
@@ -146,7 +156,11 @@ def to_input(rgb: torch.Tensor, arch: Architecture, inv_depth: torch.Tensor | No
 
 
 def inverse_depth(depth_m: np.ndarray) -> np.ndarray:
-    """The depth channel: ``min(1, 2 m / depth)`` (near things large, the sky near 0)."""
+    """The depth channel: ``min(1, 2 m / depth)`` (near things large, the sky near 0).
+
+    :param depth_m: planar depth image [m]
+    :return: ``float32`` inverse depth in ``[0, 1]``, same shape
+    """
     return np.minimum(1.0, INV_DEPTH_NEAR_M / np.maximum(depth_m, 1e-3)).astype(np.float32)
 
 
@@ -155,6 +169,10 @@ def cell_centres(h: int, w: int) -> tuple[torch.Tensor, torch.Tensor]:
 
     Cell ``j`` covers input pixels ``4j .. 4j + 3`` whose centres are at integers, so its
     centre is ``4j + 1.5``.
+
+    :param h: output grid height [cells]
+    :param w: output grid width [cells]
+    :return: the centres' ``x`` ``(w,)`` and ``y`` ``(h,)`` [px]
     """
     return torch.arange(w) * STRIDE + (STRIDE - 1) / 2.0, torch.arange(h) * STRIDE + (STRIDE - 1) / 2.0
 
@@ -202,7 +220,12 @@ def make_targets(boxes: np.ndarray, grid_hw: tuple[int, int]) -> tuple[np.ndarra
 
 
 def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """CenterNet's penalty-reduced focal loss (alpha 2, beta 4), summed over cells and divided by the peak count."""
+    """CenterNet's penalty-reduced focal loss (alpha 2, beta 4), summed over cells and divided by the peak count.
+
+    :param logits: heatmap logits ``(B, 1, h, w)``
+    :param target: target heatmap ``(B, 1, h, w)`` in ``[0, 1]``, 1 at the peaks (:func:`make_targets`)
+    :return: the loss, a scalar tensor
+    """
     p = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     pos = target.eq(1.0).float()
     neg = 1.0 - pos
@@ -213,14 +236,24 @@ def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def decode_boxes(dist: torch.Tensor) -> torch.Tensor:
-    """Edge distances ``(B, 4, h, w)`` [px] to boxes ``(B, 4, h, w)`` ``x1, y1, x2, y2`` [px]."""
+    """Edge distances ``(B, 4, h, w)`` [px] to boxes ``(B, 4, h, w)`` ``x1, y1, x2, y2`` [px].
+
+    :param dist: each cell's distances from its centre to the left, top, right and bottom edge ``(B, 4, h, w)`` [px]
+    :return: each cell's box ``(B, 4, h, w)`` ``x1, y1, x2, y2`` [px]
+    """
     xs, ys = cell_centres(dist.shape[2], dist.shape[3])
     xs, ys = xs.to(dist)[None, :], ys.to(dist)[:, None]
     return torch.stack([xs - dist[:, 0], ys - dist[:, 1], xs + dist[:, 2], ys + dist[:, 3]], dim=1)
 
 
 def giou_loss(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
-    """Generalised-IoU loss (Rezatofighi et al. 2019) of boxes ``(B, 4, h, w)``, weighted per cell."""
+    """Generalised-IoU loss (Rezatofighi et al. 2019) of boxes ``(B, 4, h, w)``, weighted per cell.
+
+    :param pred: predicted boxes ``(B, 4, h, w)`` ``x1, y1, x2, y2`` [px] (:func:`decode_boxes`)
+    :param target: target boxes ``(B, 4, h, w)`` [px]
+    :param weight: box weight per cell ``(B, 1, h, w)`` [-] (0: no box)
+    :return: 5 times the weighted mean of ``1 - GIoU`` over the cells with a weight (0 when none), a scalar tensor
+    """
     m = weight[:, 0] > 0
     if not bool(m.any()):
         return pred.sum() * 0.0
