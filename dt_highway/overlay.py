@@ -36,7 +36,7 @@ many marks, with the same labels, are shown on cars drawn at random among the pl
 Nothing here reads ground truth: input is the fusion's placements and the twin's view only.
 
 :func:`draw_overlay` draws the marks on an RGB frame (a box and a label a driver reads at a
-glance: "AGGRESSIVE DRIVER" or "<< CUTTING IN", the twin's confidence and the distance); the driving
+glance: "AGGRESSIVE DRIVER" or ">> CUTTING IN", the twin's confidence and the distance); the driving
 window and the frame export both use it.
 """
 
@@ -83,6 +83,7 @@ def predicted_box(box: np.ndarray, velocity_px_s: np.ndarray, age_s: float) -> n
         not finite, or no width or height)
     :param velocity_px_s: the velocity of each of its edges [px/s]
     :param age_s: time since that box [s]
+    :return: the predicted box ``(x1, y1, x2, y2)`` [px] (``box`` itself when ``age_s`` <= 0), or ``None``
     """
     size0 = box[2:] - box[:2]
     if not (np.all(np.isfinite(box)) and np.all(size0 > 0)):
@@ -210,6 +211,7 @@ def threat_label(side: str | None, aggressive: bool) -> str:
 
     :param side: ``"left"`` or ``"right"`` of the ego's lane, ``None`` when not known
     :param aggressive: the twin tags the car aggressive
+    :return: the label
     """
     head = "cutting in" if side is None else f"cutting in from {side}"
     return f"{head} + {TYPE_LABEL}" if aggressive else head
@@ -234,6 +236,7 @@ def in_lane(y_m: float, ego_lane: int, road_map: HighwayMap) -> bool:
     :param y_m: the car's lateral position (its last fix) [m]
     :param ego_lane: the ego's lane id
     :param road_map: the lanes
+    :return: whether it is less than half a lane width from the lane's centre
     """
     centre = road_map.lane_centre_y_m(ego_lane)
     return abs(y_m - centre) < road_map.lane_width_m / 2.0
@@ -246,6 +249,7 @@ def is_threat(view: TwinVehicleView, ego_lane: int, horizon_s: float, threshold:
     :param ego_lane: the ego's lane id (negative: unknown, never a threat)
     :param horizon_s: the horizon read (the twin's nearest one) [s]
     :param threshold: least ``p_change`` [-]
+    :return: whether the intent at ``horizon_s`` targets the ego's lane with ``p_change`` >= ``threshold``
     """
     intent = view.intent(horizon_s)
     return (ego_lane >= 0 and intent is not None and intent.p_change >= threshold
@@ -441,7 +445,8 @@ def _label_lines(item: Mapping[str, Any]) -> tuple[str, str]:
     parts = []
     if item.get("cue") == THREAT_CUE:
         side = item.get("side")
-        head = "<< CUTTING IN" if side == "left" else "CUTTING IN >>" if side == "right" else "CUTTING IN"
+        # the arrows stand on the side the car comes from and point the way it moves: into the ego's lane
+        head = ">> CUTTING IN" if side == "left" else "CUTTING IN <<" if side == "right" else "CUTTING IN"
         if item.get("aggressive"):
             parts.append("AGGRESSIVE")
     else:
@@ -494,7 +499,8 @@ def _text_size(head: str, sub: str, scale: float) -> tuple[int, int, int, int, i
 
 
 def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, full_labels: int = 2,
-                 label_range_m: float = 60.0, keep_out: Sequence[Rect] = ()) -> list[Banner]:
+                 label_range_m: float = 60.0, keep_out: Sequence[Rect] = (),
+                 bottom_px: int | None = None) -> list[Banner]:
     """Where the marks' boxes and labels go: no two labels overlap, none is stacked more than one
     label high, and none goes under what the screen draws over the picture (``keep_out``).
 
@@ -502,7 +508,7 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     above its box; when there is no room above (the image's top edge, or a ``keep_out`` area such
     as the driving window's mirror or trial label), at the top inside the box when the box is tall
     enough (a car close by), else just below the box. The ``full_labels`` first ones within
-    ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or "<< CUTTING IN", confidence,
+    ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or ">> CUTTING IN", confidence,
     distance), the others a small "!" tag. A label above or below its box that would overlap one
     already placed is moved up once, just above the one in the way, and joined to its box by a leader
     line; if it still overlaps a label or a ``keep_out`` area, or leaves the image, it is **dropped**
@@ -516,20 +522,23 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     :param full_labels: most marks with the full label [-]
     :param label_range_m: farthest distance of a full label [m]
     :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (drawn over the picture later)
+    :param bottom_px: the row [px] boxes stop at (the top of a band drawn over the picture's bottom later, such as
+        the driving window's HUD: a box does not run under it); ``None``: the image's bottom
     :return: one banner per mark whose box is on the image, in priority order
     """
     scale = max(height / 720.0, 0.3)  # text and lines grow with the picture
     thick = max(1, round(3 * scale))
+    floor = height if bottom_px is None else int(np.clip(bottom_px, 1, height))
     placed: list[tuple[int, int, int, int]] = []
     out = []
     n_full = 0
     for i in sorted(range(len(items)), key=lambda k: _priority(items[k])):
         item = items[i]
         x1, y1, x2, y2 = (float(v) for v in item["box"])
-        if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= width or y1 >= height:
+        if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= width or y1 >= floor:
             continue
         p1 = (int(round(max(x1, 0))), int(round(max(y1, 0))))
-        p2 = (int(round(min(x2, width - 1))), int(round(min(y2, height - 1))))
+        p2 = (int(round(min(x2, width - 1))), int(round(min(y2, floor - 1))))
         dist = item.get("distance_m")
         d = float(dist) if dist is not None else math.nan
         if n_full < full_labels and (not math.isfinite(d) or d <= label_range_m):
@@ -588,10 +597,12 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
 
 
 def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tuple[int, int, int] = MARK_RGB,
-                 full_labels: int = 2, label_range_m: float = 60.0, keep_out: Sequence[Rect] = ()) -> np.ndarray:
+                 full_labels: int = 2, label_range_m: float = 60.0, keep_out: Sequence[Rect] = (),
+                 bottom_px: int | None = None) -> np.ndarray:
     """A copy of ``rgb`` with each mark drawn: a box on the vehicle and a label by it (above, inside or below) on a
     filled banner, sized to the image (:func:`label_layout`: no towers of labels). Threat marks
-    ("<< CUTTING IN", the side it comes from) are amber (:data:`THREAT_RGB`), the others ``colour``.
+    (">> CUTTING IN": the arrows stand on the side the car comes from and point the way it moves) are amber
+    (:data:`THREAT_RGB`), the others ``colour``.
 
     :param rgb: ``uint8 (H, W, 3)`` RGB frame
     :param items: marks (:meth:`OverlayStabilizer.update` or ``info["adas"]["overlay"]``)
@@ -600,6 +611,7 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tu
     :param label_range_m: farthest distance of a full label [m]
     :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (what the screen draws over the
         picture afterwards: the driving window's mirror, trial label and HUD band)
+    :param bottom_px: the row [px] boxes stop at (the top of the driving window's HUD band); ``None``: the bottom
     :return: the annotated frame (same shape)
     :raises ValueError: on a frame that is not ``uint8 (H, W, 3)``, or a mark without its ``box``
     """
@@ -613,7 +625,7 @@ def draw_overlay(rgb: np.ndarray, items: Sequence[Mapping[str, Any]], colour: tu
     h, w = out.shape[:2]
     scale = max(h / 720.0, 0.3)
     font = cv2.FONT_HERSHEY_DUPLEX
-    banners = label_layout(items, w, h, full_labels, label_range_m, keep_out)
+    banners = label_layout(items, w, h, full_labels, label_range_m, keep_out, bottom_px)
     for b in banners:
         c = THREAT_RGB if items[b.mark].get("cue") == THREAT_CUE else colour
         cv2.rectangle(out, b.box[:2], b.box[2:], c, max(1, round(3 * scale)), cv2.LINE_AA)

@@ -108,6 +108,16 @@ def test_a_key_held_through_the_countdown_acts_and_is_logged_at_t0_and_pauses_ar
     walls = {e["kind"]: datetime.fromisoformat(e["wall_time"]) for e in (starts[0], ends[0])}
     assert (walls["pause_end"] - walls["pause_start"]).total_seconds() == pytest.approx(1.0, abs=0.08)
     assert all("wall_time" in e for e in trial.events)  # every event, the recorder's too
+    # how much of real time the trial kept, pauses left out (the value depends on the machine's load)
+    assert trial.meta["realtime_ratio"] == result["realtime_ratio"] and 0.0 < result["realtime_ratio"] <= 1.1
+
+
+def test_a_trial_that_did_not_keep_real_time_is_said():
+    assert drive.realtime_ratio(30.0, 32.5) == 0.923 and drive.realtime_ratio(30.0, 41.0, paused_s=11.0) == 1.0
+    assert drive.realtime_ratio(0.2, 0.4) is None  # too short to judge
+    assert drive.slow_trial_line(1.0) is None and drive.slow_trial_line(None) is None
+    line = drive.slow_trial_line(0.62)
+    assert line is not None and "0.62 of real time" in line and "slow motion" in line
 
 
 def test_a_script_built_in_code_that_ends_paused_ends_the_trial(tmp_path):
@@ -665,6 +675,21 @@ def test_a_near_cars_warning_is_not_hidden_under_the_mirror_or_the_trial_label()
     inside = (img[46:294, 6:214] == THREAT_RGB).all(axis=-1)  # within the box's outline
     assert inside.sum() > 1500  # the banner's fill (about 150 x 35 px); above the box it would be hidden
 
+
+
+def test_a_near_cars_box_stops_at_the_hud_band():
+    """The HUD's darkened band is drawn over the picture's bottom: a box of a car close by ends at the band's top
+    edge instead of running on under the speed readout."""
+    from dt_highway.overlay import MARK_RGB
+    mark = {"vehicle_id": 1, "box": [100.0, 150.0, 400.0, 359.0], "label": "aggressive driver", "distance_m": 6.0,
+            "cue": "type"}
+    img = compose_frame(np.full((360, 640, 3), 90, np.uint8), [mark], Hud(40.0, 2, 3, 30.0, "Trial 1"))
+    top = 360 - picture.hud_band_height((640, 360))
+    band = img[top + 1:, 90:410].astype(int)
+    dimmed_mark = (np.asarray(MARK_RGB) * 0.45).astype(int)
+    assert not (np.abs(band - dimmed_mark).sum(axis=-1) < 30).any()  # no box line under the band
+    edge = (img[top - 3:top, 100:400] == MARK_RGB).all(axis=-1)  # the box's bottom edge, just above it
+    assert edge.mean(axis=1).max() > 0.9
 
 # ------------------------------------------------------------------------------------------ a wheel (issue 20)
 WHEEL_CAL = {"device": "test wheel",  # throttle resting at -1 (pressed: +1), brake resting at +1 (pressed: -1)

@@ -69,3 +69,25 @@ def test_any_window_size_draws_the_screen(size):
     p = load_protocol()
     shown = render_screen(size, p.overlay.fill(), p.legend, p.continue_hint)
     assert shown.shape == (size[1], size[0], 3)
+
+
+def test_the_example_shows_every_kind_of_label_and_the_explanation_names_them(monkeypatch):
+    """The picture has a cut-in label, a driver-type label and a small "!" tag (a mark past the labelled ones), and
+    the explanation says what each means: the arrows, the percentage, the distance, the "!"."""
+    from dt_highway import overlay
+
+    heads: list[str] = []
+    real = overlay.label_layout
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        heads.extend(b.head for b in out)
+        return out
+
+    monkeypatch.setattr(overlay, "label_layout", spy)
+    marks_example.__wrapped__()  # not the cached picture: drawn again, through the spy
+    assert sorted(set(heads)) == ["!", ">> CUTTING IN", "AGGRESSIVE DRIVER"]
+    text = load_protocol().overlay.text
+    for said in ('"CUTTING IN"', "the arrows point the way it would move", '"AGGRESSIVE DRIVER"', "percentage",
+                 "metres", '"!"'):
+        assert said in text

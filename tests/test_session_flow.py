@@ -169,6 +169,13 @@ def test_the_status_line_names_what_the_experimenter_needs():
     line = status_line("P03", plan[3], 1, {"status": "aborted", "reason": "SIGTERM", "trial_sim_s": 61.25,
                                            "pauses": [{"duration_s": 2.0}]}, 2)
     assert line.split(" ", 1)[1] == "P03 | Trial 2 of 2 | adas | attempt 2 | 61.2 s | 2 crashes | 1 pause | aborted (SIGTERM)"
+    slow = status_line("P03", plan[3], 0, {"status": "completed", "reason": "time limit", "trial_sim_s": 120.0,
+                                           "realtime_ratio": 0.62}, 0)
+    assert slow.split(" ", 1)[1] == ("P03 | Trial 2 of 2 | adas | attempt 1 | 120.0 s | 0 crashes | SLOW: 0.62 of real time"
+                                     " | completed (time limit)")
+    on_time = status_line("P03", plan[3], 0, {"status": "completed", "reason": "time limit", "trial_sim_s": 120.0,
+                                              "realtime_ratio": 0.99}, 0)
+    assert "SLOW" not in on_time
 
 
 # ----------------------------------------------------------------------------- blind screens

@@ -209,7 +209,9 @@ def test_a_threat_mark_is_drawn_amber_with_its_side():
     out = draw_overlay(rgb, [threat, {"vehicle_id": 2, "box": [100, 200, 180, 260], "label": "aggressive driver",
                                       "distance_m": 40.0, "cue": "type"}])
     assert tuple(out[230, 300]) == THREAT_RGB and tuple(out[230, 100]) == MARK_RGB
-    assert label_layout([threat], 640, 360)[0].head == "<< CUTTING IN"
+    # the arrows stand on the side the car comes from and point the way it moves (into the ego's lane)
+    assert label_layout([threat], 640, 360)[0].head == ">> CUTTING IN"
+    assert label_layout([{**threat, "side": "right"}], 640, 360)[0].head == "CUTTING IN <<"
     assert threat_label("right", True) == "cutting in from right + aggressive driver"
 
 

@@ -87,16 +87,21 @@ from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 
 __all__ = [  # this module's own, and (re-exported) what the split of this module moved to crash, picture, screens and window
     "CRASH_BANNER_S", "CRASH_FLASH_S", "CRASH_POLICIES", "DRIVING_KEYS", "END_SCREEN_S", "LEGEND", "MIRROR_FRACTION",
-    "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep",
-    "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame", "crash_layer", "dialog", "drive_config",
-    "held_at_start", "hud_band_height", "open_wheel", "parse_size", "place_ego_after_crash", "run_drive", "show_card",
-    "check_free", "trial_dir", "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
+    "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "REALTIME_WARN_BELOW", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ",
+    "WINDOW_TITLE", "CrashBeep", "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame",
+    "crash_layer", "dialog", "drive_config", "held_at_start", "hud_band_height", "open_wheel", "parse_size",
+    "place_ego_after_crash", "realtime_ratio", "run_drive", "show_card", "slow_trial_line", "check_free", "trial_dir",
+    "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
 ]
 
 TRIAL_SIMULATION_HZ = 30
 """Keyboard trials' simulation frequency unless told otherwise [Hz] (``highway.simulation_frequency``;
 ``highway.policy_frequency`` follows it). ``dt-highway bench drive`` here (2 cores, load ~0.5): 30 Hz kept real
 time at 640x360 and 1280x720 (simulated / wall 0.999, 61 frames/s, frame p99 5.2 / 11.4 ms)"""
+
+REALTIME_WARN_BELOW = 0.95
+"""A trial whose simulated time is less than this share of its wall time (pauses left out) ran in slow motion:
+the experimenter is told (:func:`realtime_ratio`) [-]"""
 
 SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
 """Allowed window sizes: (width min, max), (height min, max) [px]"""
@@ -135,6 +140,9 @@ def drive_config(condition: str, steering: bool = False) -> dict[str, Any]:
     the participant's view, and the observation), the fusion and its overlay as the condition says
     (:func:`~dt_highway.conditions.condition_config`: ``adas``, ``adas-threat``, ``sham``...).
 
+    :param condition: the trial's condition (``baseline``, ``adas``...)
+    :param steering: Left/Right steer instead of changing lanes (the ``Driver`` action's ``steering``)
+    :return: the settings, a nested dict to merge over the scenario's
     :raises ConfigError: on an unknown condition (one line naming the allowed ones)
     """
     cond = condition_config(condition)
@@ -213,20 +221,34 @@ class DriveOptions:
 
 
 def trial_name(participant: str, condition: str, practice: bool) -> str:
-    """The folder name of a trial's first attempt: ``P01-adas``, ``P01-practice-adas``."""
+    """The folder name of a trial's first attempt: ``P01-adas``, ``P01-practice-adas``.
+
+    :param participant: participant id
+    :param condition: the trial's condition
+    :param practice: a practice trial
+    :return: the folder name
+    """
     return f"{participant}-practice-{condition}" if practice else f"{participant}-{condition}"
 
 
 def trial_dir(out: Path, participant: str, condition: str, practice: bool) -> Path:
     """Where a keyboard trial is logged: ``<out>/trials/<participant>-<condition>``, a practice trial in
     ``<participant>-practice`` (a name no session gives, so that a set-up practice does not count as a session's
-    practice trial; a session moves each attempt to its own name, :func:`trial_name`)."""
+    practice trial; a session moves each attempt to its own name, :func:`trial_name`).
+
+    :param out: the study directory
+    :param participant: participant id
+    :param condition: the trial's condition (not part of a practice trial's folder)
+    :param practice: a practice trial
+    :return: the trial's folder
+    """
     return Path(out) / "trials" / (f"{participant}-practice" if practice else trial_name(participant, condition, False))
 
 
 def check_free(directory: Path) -> None:
     """Refuse a trial folder that holds a trial already (``--force`` replaces it).
 
+    :param directory: the trial's folder (missing or empty: free)
     :raises ConfigError: one line naming the folder, what it holds and the ways out
     """
     if not directory.is_dir() or not any(directory.iterdir()):
@@ -561,6 +583,7 @@ def trial_settings(opts: DriveOptions | None = None, meta: dict[str, Any] | None
 
     :param opts: the planned trial's options
     :param meta: a trial log's metadata (:func:`_trial_meta`), when ``opts`` is ``None``
+    :return: ``condition``, ``seed``, ``scenario`` and ``--set``, by name
     """
     m: dict[str, Any] = meta or {}
     if opts is not None:
@@ -597,13 +620,19 @@ def _trial_meta(opts: DriveOptions, cfg: DTConfig, overrides: list[str], f_sim: 
 
 
 def wheel_calibration_path(opts: DriveOptions) -> Path:
-    """The wheel's calibration file: ``wheel_calibration``, else ``<out>/wheel-calibration.json``."""
+    """The wheel's calibration file: ``wheel_calibration``, else ``<out>/wheel-calibration.json``.
+
+    :param opts: the trial's options
+    :return: the file's path (it may not exist yet)
+    """
     return Path(opts.wheel_calibration) if opts.wheel_calibration is not None else Path(opts.out) / "wheel-calibration.json"
 
 
 def open_wheel(opts: DriveOptions) -> pygame.joystick.JoystickType | None:
     """The trial's wheel (``None``: the keyboard drives).
 
+    :param opts: the trial's options (its ``wheel`` index)
+    :return: the opened device, or ``None`` when no wheel is asked for
     :raises ConfigError: one line naming ``--wheel``, when there is no such device
     """
     if opts.wheel is None:
@@ -742,12 +771,42 @@ def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, inf
     if trial.error is not None:
         raise trial.error
     _hold_crash_banner(win, trial, last, opts.fps)
+    paused_s = round(sum(p["duration_s"] for p in trial.pauses), 3)
     log.meta.update(end_reason=trial.end_reason, collision=_collision_meta(trial, opts),
                     cut_short=trial.status == "ended_by_collision" and trial.t_sim < trial.duration - 1e-6,
-                    pauses=trial.pauses, paused_s=round(sum(p["duration_s"] for p in trial.pauses), 3))
+                    pauses=trial.pauses, paused_s=paused_s,
+                    realtime_ratio=realtime_ratio(trial.t_sim, loop_wall_s, paused_s))
     if trial.status != "completed":
         log.close(trial.status, trial.end_reason)
     return trial, frame_ms, loop_wall_s
+
+
+def realtime_ratio(sim_s: float, wall_s: float, paused_s: float = 0.0) -> float | None:
+    """How much of real time a trial kept: simulated time over wall time, pauses left out (1.0: real time; less:
+    the machine was too slow and the participant drove in slow motion, every step kept but stretched in time).
+
+    :param sim_s: simulated time of the trial [s]
+    :param wall_s: wall time of the trial [s]
+    :param paused_s: wall time spent paused [s]
+    :return: the ratio [-], rounded to 0.001; ``None`` when the trial ran for less than a second of wall time
+        (too short to judge)
+    """
+    active = wall_s - paused_s
+    if active < 1.0:
+        return None
+    return round(sim_s / active, 3)
+
+
+def slow_trial_line(ratio: float | None) -> str | None:
+    """The experimenter's warning about a trial that did not keep real time.
+
+    :param ratio: :func:`realtime_ratio`
+    :return: the line, ``None`` when the trial kept real time (``ratio >= REALTIME_WARN_BELOW``) or was too short
+    """
+    if ratio is None or ratio >= REALTIME_WARN_BELOW:
+        return None
+    return (f"  warning: the simulation kept {ratio:.2f} of real time: the participant drove in slow motion (the "
+            "machine was too slow; see 'Frame times' in the keyboard guide)")
 
 
 def _collision_meta(trial: _Trial, opts: DriveOptions) -> dict[str, Any]:
@@ -831,7 +890,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         crash flash), ``screenshots`` saved, ``frame_ms``: the work of each of those frames (window
         events, composing and showing the picture; not the wait for the next frame, and not the
         frames that only read events) [ms], ``size_px``, ``trial_wall_s`` and ``trial_sim_s`` (wall
-        and simulated time of the trial [s]), ``collisions`` (count), ``collision_t_s``, ``pauses``
+        and simulated time of the trial [s]), ``realtime_ratio`` (:func:`realtime_ratio`; a trial below
+        :data:`REALTIME_WARN_BELOW` is also said in a warning line), ``collisions`` (count), ``collision_t_s``, ``pauses``
     :raises ConfigError: on a bad option (one line)
     """
     if opts.on_crash not in CRASH_POLICIES:
@@ -884,6 +944,10 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                                                       None if wheel is None else wheel[0])
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
+            ratio = realtime_ratio(trial.t_sim, loop_wall_s, sum(p["duration_s"] for p in trial.pauses))
+            slow = slow_trial_line(ratio)
+            if slow is not None:
+                say(slow)
             unused = opts.keys_from.remaining if opts.keys_from is not None else []
             if unused:  # a script longer than the trial, or one it ended early: said, not dropped silently
                 say(f"  the key script's last {len(unused)} event{'s' if len(unused) > 1 else ''} (from "
@@ -897,5 +961,5 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
             pygame.quit()
     return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason,
             "frames": len(frame_ms), "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
-            "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim, "simulation_frequency_hz": f_sim,
+            "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim, "realtime_ratio": ratio, "simulation_frequency_hz": f_sim,
             "collisions": len(trial.crashes), "collision_t_s": [c["t_s"] for c in trial.crashes], "pauses": trial.pauses}

@@ -59,7 +59,7 @@ def compose_frame(rgb: np.ndarray, marks: list[dict[str, Any]] | None, hud: Hud,
     band_h = hud_band_height((w, h), minimap)
     badge, mirror_at = _badge_rect(hud.label, h), _mirror_rect((w, h), mirror, pad)
     keep_out = [(0, h - band_h, w, band_h), *(_grown(r) for r in (badge, mirror_at) if r is not None)]
-    out = draw_overlay(rgb, marks, keep_out=keep_out) if marks else np.ascontiguousarray(rgb).copy()
+    out = draw_overlay(rgb, marks, keep_out=keep_out, bottom_px=h - band_h) if marks else np.ascontiguousarray(rgb).copy()
     small = None
     if minimap is not None:  # bottom right, in the HUD's band: the sky stays free for the marks' labels
         small = cv2.resize(minimap, _minimap_size(w, minimap), interpolation=cv2.INTER_AREA)

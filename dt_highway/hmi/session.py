@@ -58,6 +58,7 @@ from dt_highway.conditions import check_condition, check_mode_override, shows_ov
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
 from dt_highway.hmi.drive import (
+    REALTIME_WARN_BELOW,
     DriveOptions,
     SignalScope,
     drive_config,
@@ -123,6 +124,8 @@ def balanced_latin_square(k: int) -> list[list[int]]:
 def check_conditions(conditions: Sequence[str]) -> tuple[str, ...]:
     """A session's conditions, checked: known, no repeats, at least two.
 
+    :param conditions: the conditions' names
+    :return: the checked names, in the given order
     :raises ConfigError: one line naming the problem
     """
     out = tuple(check_condition(c) for c in conditions)
@@ -138,6 +141,7 @@ def condition_order(participant: str, conditions: Sequence[str] = DEFAULT_CONDIT
 
     :param participant: participant id (its trailing number picks the row)
     :param conditions: the session's conditions
+    :return: the conditions in the participant's order
     :raises ConfigError: on unknown or repeated conditions
     """
     conds = check_conditions(conditions)
@@ -177,13 +181,20 @@ class SessionTrial:
 
 
 def attempt_name(name: str, attempt: int) -> str:
-    """The folder name of attempt ``attempt`` (0: the first) of trial ``name``: ``P01-adas-retry2``."""
+    """The folder name of attempt ``attempt`` (0: the first) of trial ``name``: ``P01-adas-retry2``.
+
+    :param name: the trial's first attempt's folder name (:func:`~dt_highway.hmi.drive.trial_name`)
+    :param attempt: the attempt's number (0: the first)
+    :return: the folder name
+    """
     return name if attempt == 0 else f"{name}-retry{attempt}"
 
 
 def attempt_dirs(out: Path, name: str) -> list[tuple[int, Path]]:
     """The attempts of trial ``name`` found under ``<out>/trials``, in order.
 
+    :param out: the study directory
+    :param name: the trial's first attempt's folder name
     :return: ``(attempt, folder)`` pairs
     """
     pattern = re.compile(re.escape(name) + r"(?:-retry(\d+))?")
@@ -203,7 +214,12 @@ def _status(d: Path) -> str | None:
 
 
 def completed_attempt(out: Path, name: str) -> Path | None:
-    """The attempt of trial ``name`` that finished (:data:`FINISHED`), or ``None``."""
+    """The attempt of trial ``name`` that finished (:data:`FINISHED`), or ``None``.
+
+    :param out: the study directory
+    :param name: the trial's first attempt's folder name
+    :return: that attempt's folder (the first one found), or ``None``
+    """
     return next((d for _, d in attempt_dirs(out, name) if _status(d) in FINISHED), None)
 
 
@@ -216,6 +232,7 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None,
     :param practice_duration_s: each practice trial's length [s] (``None``: the protocol's)
     :param conditions: the session's conditions
     :param protocol: the session's protocol (its labels and practice length; ``None``: the default one)
+    :return: the practice trials, then the trials that count
     :raises ConfigError: on unknown or repeated conditions, or an ``overlay.mode`` override beside a condition that
         names its mode
     """
@@ -274,13 +291,17 @@ def status_line(participant: str, trial: SessionTrial, attempt: int, result: dic
     :param result: what :func:`~dt_highway.hmi.drive.run_drive` returned, with ``reason``
     :param crashes: the collisions logged in the attempt
     :return: e.g. ``12:03:44 P01 | Trial 2 of 4 | adas-threat | attempt 1 | 120.0 s | 1 crash | completed (time limit)``
+        (with ``| SLOW: 0.62 of real time`` when the trial kept less than :data:`~dt_highway.hmi.drive.REALTIME_WARN_BELOW`)
     """
     sim = result.get("trial_sim_s")
     driven = f"{sim:.1f} s" if isinstance(sim, (int, float)) else "- s"
     pauses = len(result.get("pauses") or [])
+    ratio = result.get("realtime_ratio")
+    slow = isinstance(ratio, (int, float)) and ratio < REALTIME_WARN_BELOW
     return (f"{time.strftime('%H:%M:%S')} {participant} | {trial.label} | {trial.condition} | attempt {attempt + 1} | "
             f"{driven} | {crashes} crash{'' if crashes == 1 else 'es'}"
             + (f" | {pauses} pause{'' if pauses == 1 else 's'}" if pauses else "")
+            + (f" | SLOW: {ratio:.2f} of real time" if slow else "")
             + f" | {result['status']} ({result['reason']})")
 
 
@@ -453,7 +474,7 @@ class _Session:
         self.say(status_line(self.base.participant, t, k, entry, crashes))
         self.log("attempt", trial=t.name, label=t.label, condition=t.condition, practice=t.practice, attempt=k,
                  directory=entry["directory"], status=entry["status"], reason=reason, crashes=crashes,
-                 sim_s=result.get("trial_sim_s"), wall_s=round(wall_s, 3))
+                 sim_s=result.get("trial_sim_s"), wall_s=round(wall_s, 3), realtime_ratio=result.get("realtime_ratio"))
 
     def drive_until_done(self, t: SessionTrial) -> Path:
         """Attempts until one is completed; after a stopped one the participant may drive it again.
@@ -614,6 +635,7 @@ def _drive_quietly(opts: DriveOptions) -> dict[str, Any]:
 def check_questionnaires(protocol: Protocol) -> None:
     """Read every questionnaire the protocol names, before the session starts.
 
+    :param protocol: the session's protocol
     :raises ConfigError: one line, on an unknown name or a bad file
     """
     for name in {*protocol.questionnaires.baseline, *protocol.questionnaires.overlay}:
