@@ -333,7 +333,8 @@ def _sigterm_run(out: Path, keys: Path) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(cmd, proc.returncode, out_text, err_text)
 
 
-def test_a_whole_scripted_session_keeps_every_attempt_and_the_report_lists_the_aborted_ones(tmp_path, capsys):
+def test_a_whole_scripted_session_keeps_every_attempt_and_the_report_lists_the_aborted_ones(tmp_path, capsys,
+                                                                                           monkeypatch):
     out = tmp_path / "study"
     keys = tmp_path / "keys.txt"
     keys.write_text(KEYS)
@@ -353,8 +354,20 @@ def test_a_whole_scripted_session_keeps_every_attempt_and_the_report_lists_the_a
     assert "attempt 3 |" in term.stdout and "aborted (SIGTERM)" in term.stdout and "stopped: SIGTERM" in term.stdout
     # 4: the CLI drives the fourth attempt to its end, with the questionnaires and the end screen
     shots = tmp_path / "shots"
+    closed: list[str] = []  # the window closes once, at the end: never between screens, the trial and questionnaires
+    real_quit, real_display_quit = pygame.quit, pygame.display.quit
+
+    def quit_all() -> None:
+        closed.append("pygame.quit")
+        monkeypatch.setattr(pygame.display, "quit", real_display_quit)  # pygame.quit calls it too
+        real_quit()
+
+    monkeypatch.setattr(pygame, "quit", quit_all)
+    monkeypatch.setattr(pygame.display, "quit", lambda: (closed.append("display.quit"), real_display_quit())[1])
     assert main(["session", "--participant", "P01", "--duration", "3", "--out", str(out), "--keys-from", str(keys),
                  "--answers-from", str(answers), "--screenshot-every", "100", "--screenshots", str(shots), *FAST]) == 0
+    monkeypatch.undo()
+    assert closed == ["pygame.quit"]
     said_cli = capsys.readouterr().out
     assert "P01-practice-baseline: already completed, skipped" in said_cli and "4 of 4 trials done" in said_cli
 

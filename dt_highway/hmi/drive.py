@@ -870,8 +870,16 @@ def _prepare(win: _Window, img: np.ndarray | None,
     return done["value"]
 
 
+def _close_env(env: gym.Env, keep_window: bool) -> None:
+    """Close the trial's env; with ``keep_window``, without its mini-map viewer's ``close``, which would call
+    ``pygame.quit()`` and so close the window too (the viewer draws off screen: dropping it frees it)."""
+    if keep_window:
+        env.unwrapped.viewer = None  # type: ignore[attr-defined]  # highway-env's AbstractEnv
+    env.close()
+
+
 def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None = None,
-              say: Callable[[str], object] | None = None) -> dict[str, Any]:
+              say: Callable[[str], object] | None = None, keep_window: bool = False) -> dict[str, Any]:
     """Run one keyboard trial in a pygame window and log it.
 
     The simulation runs in its own thread, locked to the wall clock; the window (this thread)
@@ -884,6 +892,9 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     :param on_frame: called with every picture put on the window (tests, recording), at the composed
         size: each distinct picture once (screens before and after the trial too), never a repeat
     :param say: where the experimenter's one-line status of the trial goes (default: stderr)
+    :param keep_window: leave the window open at the end, for the next screen to draw on (a session: the
+        participant never sees the desktop between screens and trials); the caller closes it (``pygame.quit()``).
+        Otherwise the window closes with the trial
     :return: ``directory``, ``status`` (``completed``, ``ended_by_collision``, ``aborted`` or
         ``not started``), ``end_reason``, ``frames``: pictures put on the window during the trial (so
         ``frames / trial_wall_s`` is pictures shown per second, at most the simulation rate outside the
@@ -957,8 +968,9 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
         finally:
             sys.setswitchinterval(old_switch)
             if env is not None:
-                env.close()
-            pygame.quit()
+                _close_env(env, keep_window)
+            if not keep_window:
+                pygame.quit()
     return {"directory": str(directory), "status": trial.status, "end_reason": trial.end_reason,
             "frames": len(frame_ms), "screenshots": trial.shots, "frame_ms": frame_ms, "size_px": list(size),
             "trial_wall_s": loop_wall_s, "trial_sim_s": trial.t_sim, "realtime_ratio": ratio, "simulation_frequency_hz": f_sim,

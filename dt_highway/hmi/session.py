@@ -628,8 +628,13 @@ def _window_size(base: DriveOptions, condition: str) -> tuple[int, int]:
 
 def _drive_quietly(opts: DriveOptions) -> dict[str, Any]:
     """:func:`~dt_highway.hmi.drive.run_drive` without its own status line (the session prints one
-    per attempt, with the attempt's folder rather than the staging one)."""
-    return run_drive(opts, say=lambda _line: None)
+    per attempt, with the attempt's folder rather than the staging one), leaving the window open for the session's
+    next screen (closed at the session's end).
+
+    :param opts: the attempt
+    :return: what :func:`~dt_highway.hmi.drive.run_drive` returns
+    """
+    return run_drive(opts, say=lambda _line: None, keep_window=True)
 
 
 def check_questionnaires(protocol: Protocol) -> None:
