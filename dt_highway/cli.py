@@ -217,7 +217,16 @@ def _test_episodes(text: str) -> int:
     return _whole(text, "--test-episodes must be a whole number", "--test-episodes must be >= 0")
 
 
-def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]:
+def _positive(kind: Callable[[str], float], name: str, most: float | None = None,
+              why: str = "") -> Callable[[str], float]:
+    """An argparse type: a finite number > 0 (and at most ``most``), else a one-line error naming the option.
+
+    :param kind: ``int`` or ``float``
+    :param name: the option, for the message
+    :param most: the largest value allowed (``None``: no bound)
+    :param why: said after the bound in the message
+    :return: the parser
+    """
     def parse(text: str) -> float:
         try:
             value = kind(text)
@@ -225,12 +234,21 @@ def _positive(kind: Callable[[str], float], name: str) -> Callable[[str], float]
             raise argparse.ArgumentTypeError(f"{name} must be a number (got '{text}')") from None
         if not math.isfinite(value) or value <= 0:
             raise argparse.ArgumentTypeError(f"{name} must be a finite number > 0 (got {text})")
+        if most is not None and value > most:
+            raise argparse.ArgumentTypeError(f"{name} must be at most {most:g} (got {text}){why}")
         return value
 
     return parse
 
 
 # ----------------------------------------------------------------------------- twin-eval
+ORACLE_MAX_FUTURES = 64
+"""``twin-eval --oracle N``'s largest ``N`` (futures per estimate; 8 already makes the run about 9 times longer)"""
+
+STUDY_MAX_TRIALS = 1000
+"""``study --trials``' largest value, pairs per condition (60 pairs of 5 conditions, 300 trials, took 34 min here:
+1000 pairs of two conditions would take about 4 hours): a mistyped count is refused rather than started"""
+
 MIN_OBSERVED_S = 30.0
 """``twin-eval``'s default ``--min-observed-s``: judge only drivers the twin observed this long [s]"""
 
@@ -1318,7 +1336,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--driver", metavar="FILE",
                    help="with --intent: this driver (e.g. agents/human.toml) drives the ego, in the baseline condition, "
                    "as in a study (default: the autopilot, 25 m/s in its lane)")
-    p.add_argument("--oracle", type=_positive(int, "--oracle"), metavar="N",
+    p.add_argument("--oracle", type=_positive(int, "--oracle", ORACLE_MAX_FUTURES,
+                                              ": each future multiplies the run's length"), metavar="N",
                    help="with --intent: also score an oracle that simulates N futures of the simulator's whole state "
                    "at every estimate (drivers' minds included): about how far ahead lane changes can be foreseen "
                    "at all; N = 8 makes the run about 9 times longer")
@@ -1423,7 +1442,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--driver", help="driver file, e.g. agents/human.toml")
     p.add_argument("--conditions", default="baseline,adas",
                    help=f"conditions, paired by seed (default baseline,adas; allowed: {','.join(CONDITIONS)})")
-    p.add_argument("--trials", type=_positive(int, "--trials"), help="pairs of trials (default 10; --quick: 3)")
+    p.add_argument("--trials", type=_positive(int, "--trials", STUDY_MAX_TRIALS,
+                                              ": a larger count is most likely a typo"),
+                   help=f"pairs of trials (default 10; --quick: 3; at most {STUDY_MAX_TRIALS})")
     p.add_argument("--seed", type=_seed, default=0, help="seed of the first pair; pair i uses seed + i (default 0)")
     p.add_argument("--workers", type=_positive(int, "--workers"), default=2, help="parallel trials (default 2)")
     p.add_argument("--out", help="study directory, e.g. runs/<name> (--quick: runs/quick-study)")

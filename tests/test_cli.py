@@ -58,6 +58,18 @@ def test_bad_numbers_on_the_command_line(capsys):
     assert "Traceback" not in proc.stderr
 
 
+@pytest.mark.parametrize(("args", "message"), [
+    (["twin-eval", "--intent", "--oracle", "65"], "--oracle must be at most 64 (got 65): each future multiplies"),
+    (["study", "--trials", "6000"], "--trials must be at most 1000 (got 6000): a larger count is most likely a typo"),
+])
+def test_counts_with_an_upper_bound_are_refused_in_one_line(args, message, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(args)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
 def test_unknown_scenario_file(capsys):
     assert main(["twin-eval", "--scenario", "envs/nope.toml", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
