@@ -168,7 +168,10 @@ class HumanDriverFile(HumanParams):
     kind: Literal["human"]
 
     def params(self) -> HumanParams:
-        """:return: the driver's parameters (the file without its ``kind``)"""
+        """The human driver's parameters this file gives, as :class:`HumanParams`.
+
+        :return: the driver's parameters (the file without its ``kind``)
+        """
         return HumanParams.model_validate(self.model_dump(exclude={"kind"}))
 
 
@@ -185,7 +188,10 @@ class RandomDriverFile(RandomParams):
     kind: Literal["random"]
 
     def params(self) -> RandomParams:
-        """:return: the driver's parameters (the file without its ``kind``)"""
+        """The random driver's parameters this file gives, as :class:`RandomParams`.
+
+        :return: the driver's parameters (the file without its ``kind``)
+        """
         return RandomParams.model_validate(self.model_dump(exclude={"kind"}))
 
 

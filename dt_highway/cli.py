@@ -1298,7 +1298,10 @@ def _show_help(parser: argparse.ArgumentParser) -> Callable[[argparse.Namespace]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """:return: the ``dt-highway`` parser, every command and its options"""
+    """The command-line parser of ``dt-highway``.
+
+    :return: the ``dt-highway`` parser, every command and its options
+    """
     parser = _Parser(
         prog="dt-highway",
         description="Highway driving with a cloud digital twin that tags aggressive drivers (highway-env extension).",

@@ -487,7 +487,10 @@ class ContinuumConfig(_Section):
         return self
 
     def traits(self) -> dict[str, NormalTrait | LogNormalTrait]:
-        """:return: the parameters' distributions by name, in the order they are drawn"""
+        """The distributions of the continuum drivers' parameters.
+
+        :return: the parameters' distributions by name, in the order they are drawn
+        """
         return {name: getattr(self, name) for name in CONTINUUM_LIMITS}
 
 
@@ -972,7 +975,10 @@ class DTConfig(_Section):
         return self
 
     def to_dict(self) -> dict[str, Any]:
-        """:return: the resolved tree as plain Python values (TOML/JSON friendly)."""
+        """This configuration as plain data.
+
+        :return: the resolved tree as plain Python values (TOML/JSON friendly).
+        """
         return self.model_dump(mode="json")
 
 

@@ -62,7 +62,9 @@ def whole_number(value: Any) -> int | None:
 
 
 def positive_number(value: Any) -> float | None:
-    """:func:`finite_number`, when it is also > 0 (a duration, a frequency), else ``None``.
+    """A value read as a positive finite number, or ``None``.
+
+    :func:`finite_number`, when it is also > 0 (a duration, a frequency), else ``None``.
 
     :param value: the value read
     :return: it as a float, or ``None``

@@ -443,7 +443,9 @@ def _plain(x: Any) -> Any:
 
 def paired_tests(metrics: pd.DataFrame, a: str = "baseline", b: str = "adas",
                  names: Sequence[str] = SUMMARY_METRICS) -> dict[str, Any]:
-    """:func:`dt_highway.metrics.stats.paired_tests` of the report's metrics (``names``: :data:`SUMMARY_METRICS`).
+    """Paired tests of the report's metrics, condition ``b`` against ``a``.
+
+    :func:`dt_highway.metrics.stats.paired_tests` of the report's metrics (``names``: :data:`SUMMARY_METRICS`).
 
     :param metrics: one row per trial (:func:`collect`)
     :param a: the reference condition

@@ -369,7 +369,9 @@ def _exit_with_parent(parent: BaseProcess, grace_s: float = ORPHAN_GRACE_S) -> N
 
 
 def _pool_trial(spec: TrialSpec) -> dict[str, Any]:
-    """:func:`run_trial` in a worker process: not started after Ctrl-C, interrupted by it.
+    """Run one trial in a worker process of the pool.
+
+    :func:`run_trial` in a worker process: not started after Ctrl-C, interrupted by it.
 
     :return: run_trial's result, or status ``cancelled`` (not started) or ``interrupted``
     """
@@ -550,10 +552,13 @@ def _mark_abandoned(directory: str | Path, wait_s: float = 2.0) -> bool:
 
 
 def _ray_trial(spec: TrialSpec) -> dict[str, Any]:
-    """:func:`run_trial` as a Ray task. Ray cancels a running task by a simulated SIGINT in its worker,
+    """Run one trial in a Ray worker.
+
+    :func:`run_trial` as a Ray task. Ray cancels a running task by a simulated SIGINT in its worker,
     which Python drops when SIGINT is ignored there (inherited from a study started as a background
     job): the task then ran on. Its worker's Python takes SIGINT for the task (the OS signal stays
-    blocked in Ray's workers)."""
+    blocked in Ray's workers).
+    """
     main = threading.current_thread() is threading.main_thread()
     if main and signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.SIG_DFL):
         signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -1,5 +1,6 @@
 """The house docstring rule, checked on the source (stable-baselines3 style, DESIGN.md "Conventions"): every public
-function and method documents each argument with a ``:param name:`` line and what it returns with ``:return:``.
+function and method starts with a summary line, documents each argument with a ``:param name:`` line and what it
+returns with ``:return:``.
 
 ruff's pydocstyle rules check that a docstring exists; its argument rule (D417) knows only the Google style, so the
 sphinx-style lines are checked here, on the syntax tree (nothing is imported)."""
@@ -40,7 +41,10 @@ def missing_lines(source: str) -> list[str]:
     def visit(parent: ast.AST, owner: str, owner_doc: str) -> None:
         for node in ast.iter_child_nodes(parent):
             if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
-                visit(node, node.name + ".", ast.get_docstring(node) or "")
+                class_doc = ast.get_docstring(node) or ""
+                if class_doc.lstrip().startswith(":"):
+                    out.append(f"{node.lineno} {owner}{node.name}: a summary line before the fields")
+                visit(node, node.name + ".", class_doc)
             if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 continue
             if node.name.startswith("_") and node.name != "__init__":
@@ -56,6 +60,8 @@ def missing_lines(source: str) -> list[str]:
             lacking = [f":param {n}:" for n in names if n not in ("self", "cls") and f":param {n}:" not in doc]
             if _returns_something(node) and not decorators & {"property", "cached_property"} and ":return:" not in doc:
                 lacking.append(":return:")
+            if doc.lstrip().startswith(":") and node.name != "__init__":
+                lacking.insert(0, "a summary line before the fields")
             if lacking:
                 out.append(f"{node.lineno} {owner}{node.name}: {' '.join(lacking)}")
 
@@ -84,6 +90,9 @@ def half(a: int, b: int) -> int:
     :param a: one
     """
 
+def fields_only(a: int) -> None:
+    """:param a: one"""
+
 class Thing:
     """A class whose __init__ is documented here.
 
@@ -101,7 +110,8 @@ class Thing:
     def _private(self, z: int) -> int:
         return z
 '''
-    assert missing_lines(src) == ["10 half: :param b: :return:", "22 Thing.__init__: :param y:"]
+    assert missing_lines(src) == ["10 half: :param b: :return:", "16 fields_only: a summary line before the fields",
+                                  "25 Thing.__init__: :param y:"]
 
 
 @pytest.mark.parametrize("path", _public_modules(), ids=lambda p: str(p.relative_to(PACKAGE)))

@@ -159,7 +159,10 @@ class DriverAction(ActionType):
         self.accel_max_mps2 = float(accel_max_mps2)
 
     def space(self) -> spaces.Space:
-        """:return: ``Box([accel_min, -1], [accel_max, 1])``: acceleration [m/s^2] and lane -1..1"""
+        """The continuous action space.
+
+        :return: ``Box([accel_min, -1], [accel_max, 1])``: acceleration [m/s^2] and lane -1..1
+        """
         return spaces.Box(np.array([self.accel_min_mps2, -1.0], dtype=np.float32),
                           np.array([self.accel_max_mps2, 1.0], dtype=np.float32), dtype=np.float32)
 
@@ -224,7 +227,10 @@ class DiscreteDriverAction(DriverAction):
                                     reaction_time_s, brake_limit_mps2)
 
     def space(self) -> spaces.Discrete:
-        """:return: one choice per menu entry"""
+        """The discrete action space.
+
+        :return: one choice per menu entry
+        """
         return spaces.Discrete(self.choices.size)
 
     def reset(self) -> None:

@@ -307,7 +307,10 @@ class DTHighwayEnv(HighwayEnv):
     # ------------------------------------------------------------------ configuration
     @classmethod
     def default_config(cls) -> dict:
-        """:return: highway-env's flat configuration of the default :class:`~dt_highway.config.DTConfig`"""
+        """The env's default configuration, in highway-env's flat form.
+
+        :return: highway-env's flat configuration of the default :class:`~dt_highway.config.DTConfig`
+        """
         return cls._flat_highway_config(DTConfig())
 
     @staticmethod

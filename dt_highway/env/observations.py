@@ -222,7 +222,10 @@ class CameraObservation(ObservationType):
         self.depth = bool(depth)
 
     def space(self) -> spaces.Space:
-        """:return: the camera's RGB image (and its depth, with ``depth``), ``uint8``"""
+        """The observation space of the camera's images.
+
+        :return: the camera's RGB image (and its depth, with ``depth``), ``uint8``
+        """
         cam = self.env.dt_config.camera
         parts: dict[str, spaces.Space] = {
             "rgb": spaces.Box(0, 255, shape=(cam.height_px, cam.width_px, 3), dtype=np.uint8)
@@ -232,7 +235,10 @@ class CameraObservation(ObservationType):
         return spaces.Dict(parts)
 
     def observe(self) -> dict[str, np.ndarray]:
-        """:return: the camera's RGB image (and its depth scaled to ``uint8`` over the camera's range)"""
+        """The camera's images now.
+
+        :return: the camera's RGB image (and its depth scaled to ``uint8`` over the camera's range)
+        """
         image = self.env.camera_image()
         out = {"rgb": image.rgb}
         if self.depth:
@@ -256,7 +262,10 @@ class ResizedCamera:
         self.env, self.size, self.depth = env, size, depth
 
     def space(self) -> spaces.Dict:
-        """:return: the resized picture (and its depth), ``uint8``"""
+        """The observation space of the resized picture.
+
+        :return: the resized picture (and its depth), ``uint8``
+        """
         w, h = self.size
         parts: dict[str, spaces.Space] = {"rgb": spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)}
         if self.depth:
@@ -264,7 +273,10 @@ class ResizedCamera:
         return spaces.Dict(parts)
 
     def observe(self) -> dict[str, np.ndarray]:
-        """:return: the picture the driver sees, overlay drawn, resized (and its depth)"""
+        """The picture the driver sees now, at the policy's size.
+
+        :return: the picture the driver sees, overlay drawn, resized (and its depth)
+        """
         image = self.env.camera_image()
         rgb = image.rgb
         adas = self.env.adas_output()

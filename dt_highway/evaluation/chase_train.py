@@ -39,7 +39,9 @@ search range) [m]"""
 
 
 def chase_dataset(episodes: list[Episode]) -> tuple[np.ndarray, np.ndarray]:
-    """:param episodes: episodes recorded with ``chase=True``
+    """The chase data set of recorded episodes.
+
+    :param episodes: episodes recorded with ``chase=True``
     :return: the inputs ``(M, F)`` and labels ``(M,)`` (bool) of every recorded chase sample
     """
     xs = [inputs.x for ep in episodes for inputs, _ in (ep.chase or []) if len(inputs)]
@@ -89,7 +91,9 @@ def fit_chase(x: np.ndarray, y: np.ndarray, epochs: int = 12, batch: int = 512, 
 
 
 def near_ego(x: np.ndarray) -> np.ndarray:
-    """:param x: chase inputs ``(M, F)``, columns of :data:`~dt_highway.twin.chase.CHASE_FEATURES`
+    """The mask of the chase samples near the ego.
+
+    :param x: chase inputs ``(M, F)``, columns of :data:`~dt_highway.twin.chase.CHASE_FEATURES`
     :return: which rows of chase inputs are near the ego (:data:`NEAR_M`, its lane or a neighbouring one)
     """
     dx = x[:, CHASE_FEATURES.index("dx_0s")] * 50.0
@@ -108,7 +112,9 @@ def _scores(p: np.ndarray, y: np.ndarray) -> dict[str, Any]:
 
 
 def score_chase(detector: ChaseDetector, x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    """:param detector: the detector scored
+    """Score a chase detector on labelled inputs.
+
+    :param detector: the detector scored
     :param x: chase inputs ``(M, F)``
     :param y: their labels ``(M,)`` (bool: chasing)
     :return: AUC, precision and recall of ``detector`` on labelled inputs, for all and for those near the ego

@@ -466,7 +466,9 @@ class Truth:
         self.next_lane = np.where(ok, self.lane[np.minimum(nxt, n - 1)], -1)
 
     def rows_at(self, vehicle_ids: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-        """:param vehicle_ids: the vehicles ``(N,)``
+        """Look up the truth rows of vehicles at given times.
+
+        :param vehicle_ids: the vehicles ``(N,)``
         :param t_s: the times, one per vehicle ``(N,)`` [s]
         :return: the truth row of each ``(vehicle, time)`` (-1 when the vehicle was not on the road then)
         """
@@ -493,7 +495,9 @@ class Truth:
         return known, changed, np.where(changed, self.next_lane[r], -1)
 
     def overlaps_between(self, vehicle_id: int, t0_s: float, t1_s: float) -> bool:
-        """:param vehicle_id: the vehicle
+        """Whether a vehicle overlapped the ego's lane within a time interval.
+
+        :param vehicle_id: the vehicle
         :param t0_s: start of the interval [s]
         :param t1_s: end of the interval [s]
         :return: whether the vehicle's body overlapped the ego's lane at some step in ``[t0_s, t1_s]``

@@ -186,7 +186,9 @@ class OpenAttempt:
 
     @classmethod
     def of(cls, policy: CutInPolicy, clock_s: float) -> OpenAttempt | None:
-        """:param policy: the driver's cut-in policy in the simulator
+        """A driver's cut-in attempt as its policy in the simulator has it now.
+
+        :param policy: the driver's cut-in policy in the simulator
         :param clock_s: its driver's clock now [s]
         :return: the attempt of ``policy`` at its driver's ``clock_s`` [s] (``None``: no attempt open, no brake
         under way, no lane kept: nothing that a fresh draw would not give)
@@ -224,7 +226,9 @@ class RevealedPicture(TwinPicture):
 
     @classmethod
     def of(cls, picture: TwinPicture, attempts: Mapping[int, OpenAttempt]) -> RevealedPicture:
-        """:param picture: the twin's picture
+        """A twin's picture with its drivers' open cut-in attempts.
+
+        :param picture: the twin's picture
         :param attempts: per vehicle id, its driver's open attempt
         :return: ``picture`` with ``attempts``
         """
@@ -472,7 +476,9 @@ class Oracle:
 
     def estimate(self, road: Road, t_s: float, dt_s: float, vehicle_ids: np.ndarray, lanes: np.ndarray,
                  picture: TwinPicture | Callable[[], TwinPicture] | None = None) -> np.ndarray:
-        """:param road: the simulator's road now (left untouched)
+        """The oracle's lane-change probabilities, from simulated futures.
+
+        :param road: the simulator's road now (left untouched)
         :param t_s: simulation time now [s]
         :param dt_s: the simulation step [s]
         :param vehicle_ids: the estimate's vehicles, ``(N,)``

@@ -165,7 +165,9 @@ def train_epochs(opt: torch.optim.Optimizer, n_samples: int, epochs: int, batch:
 
 
 def numpy_layers(net: torch.nn.Sequential) -> Layers:
-    """:param net: the network
+    """The weights of a torch network as numpy arrays.
+
+    :param net: the network
     :return: the ``(W, b)`` of each linear layer of a torch ``Sequential``, as float64 numpy (``W`` as ``(in, out)``)
     """
     import torch  # lazy: training only, as in fit

@@ -183,7 +183,10 @@ def population_ceiling(config: DTConfig, drivers: int = CEILING_DRIVERS, seed: i
 
 
 def _latent_median(population: DriverPopulation) -> float | None:
-    """:return: the median latent score of the population, ``None`` when it has none (two-class)"""
+    """The median latent aggressiveness of a driver population.
+
+    :return: the median latent score of the population, ``None`` when it has none (two-class)
+    """
     z = [d.aggressiveness for d in population.drivers.values() if d.aggressiveness is not None]
     return float(np.median(z)) if z else None
 
@@ -317,8 +320,11 @@ class _Score:
 
 def _times_to_tag(records: dict[int, DriverRecord], population: DriverPopulation,
                   min_observed_s: float) -> tuple[list[float], int]:
-    """:return: the truly aggressive drivers' times from first analysis to first aggressive tag [s], and how
-        many of those observed at least ``min_observed_s`` were never tagged"""
+    """How long the twin took to tag the truly aggressive drivers.
+
+    :return: the truly aggressive drivers' times from first analysis to first aggressive tag [s], and how
+        many of those observed at least ``min_observed_s`` were never tagged
+    """
     times_to_tag: list[float] = []
     untagged_aggressive = 0
     for vid, rec in records.items():

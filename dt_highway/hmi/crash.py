@@ -179,9 +179,12 @@ def place_ego_after_crash(env: DTHighwayEnv, min_gap_m: float = 30.0, headway_s:
 
 
 class CrashView:
-    """:func:`crash_layer` for a window: during the flash a new picture every call (it fades), after
+    """The crash feedback for a window: a fading picture during the flash, then one held picture.
+
+    :func:`crash_layer` for a window: during the flash a new picture every call (it fades), after
     it the banner's picture made once per picture under it (the same object while that picture
-    stays), so that the window does not redraw an unchanged picture (:meth:`_Window.show`)."""
+    stays), so that the window does not redraw an unchanged picture (:meth:`_Window.show`).
+    """
 
     def __init__(self) -> None:
         self._banner: tuple[np.ndarray, np.ndarray] | None = None

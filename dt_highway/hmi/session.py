@@ -627,7 +627,9 @@ def _window_size(base: DriveOptions, condition: str) -> tuple[int, int]:
 
 
 def _drive_quietly(opts: DriveOptions) -> dict[str, Any]:
-    """:func:`~dt_highway.hmi.drive.run_drive` without its own status line (the session prints one
+    """Drive one attempt of the session.
+
+    :func:`~dt_highway.hmi.drive.run_drive` without its own status line (the session prints one
     per attempt, with the attempt's folder rather than the staging one), leaving the window open for the session's
     next screen (closed at the session's end).
 

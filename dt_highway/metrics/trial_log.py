@@ -367,7 +367,10 @@ def load_trial(directory: str | Path) -> Trial:
 
 
 def _check_fields(path: Path, text: str) -> None:
-    """:raises TrialLogError: when a line of the CSV ``text`` has another number of fields than its header"""
+    """Check that every line of a trial log's CSV has as many fields as its header.
+
+    :raises TrialLogError: when a line of the CSV ``text`` has another number of fields than its header
+    """
     width = None
     try:
         for lineno, fields in enumerate(csv.reader(io.StringIO(text)), start=1):

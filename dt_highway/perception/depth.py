@@ -36,7 +36,10 @@ def row_median(values: np.ndarray) -> np.ndarray:
 
 @kernel
 def _regions(b: np.ndarray, th: float, height: int, width: int) -> np.ndarray:
-    """:func:`sample_regions` without the checks (compiled)."""
+    """The sampling area of each box (compiled).
+
+    :func:`sample_regions` without the checks (compiled).
+    """
     out = np.empty((b.shape[0], 4))
     lo, hi_u, hi_v = -0.5, width - 0.5, height - 0.5
     for i in range(b.shape[0]):

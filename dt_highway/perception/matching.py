@@ -164,7 +164,9 @@ def match_each(
     fallback: Fallback = "none",
     max_fallback_px: float = 20.0,
 ) -> tuple[np.ndarray, list[str]]:
-    """:func:`match_baseline` (without distances) or :func:`match_distance` (with them) for
+    """Match each of many targets to a detected box.
+
+    :func:`match_baseline` (without distances) or :func:`match_distance` (with them) for
     many targets at once, each on its own (the same results, as arrays).
 
     :param anchors_uv: ``(K, 2)`` anchors (NaN rows: no match)
@@ -295,8 +297,11 @@ _NONE_2D = np.zeros((0, 0))
 def _joint_cost(a: np.ndarray, g: np.ndarray, b: np.ndarray, d: np.ndarray, sigma: np.ndarray, e: np.ndarray,
                 extra: np.ndarray, depth_scale_m: float, outside_penalty: float, min_fit: float,
                 gate: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`match_joint`'s cost ``(K, N)`` (forbidden pairs at ``_NOT_ALLOWED``) and which pairs are
-    allowed; ``e`` and ``extra`` may have no rows (not given)."""
+    """The joint matching's cost of each target-box pair (compiled).
+
+    :func:`match_joint`'s cost ``(K, N)`` (forbidden pairs at ``_NOT_ALLOWED``) and which pairs are
+    allowed; ``e`` and ``extra`` may have no rows (not given).
+    """
     k_n, n_b = a.shape[0], b.shape[0]
     total = np.empty((k_n, n_b))
     allowed = np.empty((k_n, n_b), dtype=np.bool_)

@@ -185,8 +185,11 @@ class ChaseDetector:
         return ChaseDetector(arrays["mean"], arrays["scale"], layers, meta)
 
     def predict(self, inputs: ChaseInputs) -> np.ndarray:
-        """:param inputs: the detector's inputs
-        :return: ``(N,)`` P(chasing the ego) of ``inputs.vehicle_ids`` [-]"""
+        """The probability that each vehicle is chasing the ego.
+
+        :param inputs: the detector's inputs
+        :return: ``(N,)`` P(chasing the ego) of ``inputs.vehicle_ids`` [-]
+        """
         if len(inputs) == 0:
             return np.zeros(0)
         a = (inputs.x - self.mean) / self.scale

@@ -67,8 +67,11 @@ class TwinVehicleView:
     intents: tuple[LaneChangeIntent, ...] = ()
 
     def intent(self, horizon_s: float) -> LaneChangeIntent | None:
-        """:param horizon_s: the horizon asked for [s]
-        :return: the intention for the horizon closest to ``horizon_s``, ``None`` without any."""
+        """The vehicle's lane-change intention for a horizon.
+
+        :param horizon_s: the horizon asked for [s]
+        :return: the intention for the horizon closest to ``horizon_s``, ``None`` without any.
+        """
         if not self.intents:
             return None
         return min(self.intents, key=lambda i: abs(i.horizon_s - horizon_s))
@@ -88,7 +91,10 @@ class TwinView:
     vehicles: tuple[TwinVehicleView, ...]
 
     def by_id(self) -> dict[int, TwinVehicleView]:
-        """:return: the entries keyed by vehicle id."""
+        """The view's vehicles by id.
+
+        :return: the entries keyed by vehicle id.
+        """
         return {v.vehicle_id: v for v in self.vehicles}
 
 
@@ -206,7 +212,10 @@ class CloudTwin:
             self.intent_table = estimator.estimate(self.store, self.tagger.records, now_s, self.ego_id)
 
     def n_pending(self) -> int:
-        """:return: fixes sent but not yet arrived."""
+        """The number of fixes in flight.
+
+        :return: fixes sent but not yet arrived.
+        """
         return len(self._pending)
 
     def view_around(self, ego_id: int) -> tuple[TwinVehicleView, ...]:

@@ -197,17 +197,23 @@ class IntentionInputs:
 
     @staticmethod
     def empty(t_s: float) -> IntentionInputs:
-        """:param t_s: twin time [s]
-        :return: inputs for no vehicle at twin time ``t_s``"""
+        """Intention inputs for no vehicle.
+
+        :param t_s: twin time [s]
+        :return: inputs for no vehicle at twin time ``t_s``
+        """
         return IntentionInputs(np.zeros(0, dtype=np.int64), t_s, np.zeros(0, dtype=np.int64),
                                np.zeros((0, len(OWN_FEATURES))), np.zeros((0, 2, len(SIDE_FEATURES))),
                                np.zeros((0, 2), dtype=bool))
 
 
 def p_aggressive(rec: DriverRecord | None, prior: float) -> float:
-    """:param rec: the tagger's record of the driver (``None``: none yet)
+    """The twin's posterior that a driver is aggressive.
+
+    :param rec: the tagger's record of the driver (``None``: none yet)
     :param prior: the prior probability of an aggressive driver [-]
-    :return: the twin's posterior that a driver is aggressive (``prior`` without a record)"""
+    :return: the twin's posterior that a driver is aggressive (``prior`` without a record)
+    """
     if rec is None:
         return prior
     return float(rec.confidence) if rec.tag == AGGRESSIVE else 1.0 - float(rec.confidence)
@@ -335,7 +341,10 @@ def _mobil(x: np.ndarray, v: np.ndarray, lead: np.ndarray, s_lead: np.ndarray, s
 
 
 def _windows(t: np.ndarray) -> Callable[[float], np.ndarray]:
-    """:return: ``window(w)``: the mask of each row's fixes less than ``w`` [s] older than its newest (always in)"""
+    """The masks of each row's recent fixes, by window length.
+
+    :return: ``window(w)``: the mask of each row's fixes less than ``w`` [s] older than its newest (always in)
+    """
     valid = ~np.isnan(t)
     age = t[:, -1:] - t
 
@@ -387,10 +396,13 @@ class TwinPicture:
         return len(self.vehicle_ids)
 
     def with_chases(self, vehicle_ids: np.ndarray, p_chase: np.ndarray) -> TwinPicture:
-        """:param vehicle_ids: the vehicles estimated, ``(M,)``
+        """This picture with the vehicles' probabilities of chasing the ego.
+
+        :param vehicle_ids: the vehicles estimated, ``(M,)``
         :param p_chase: their probability of chasing the ego, ``(M,)`` [-]
         :return: this picture with :attr:`p_chase` for ``vehicle_ids`` (0 for a vehicle not among them, such as
-        the ego)"""
+        the ego)
+        """
         index = {int(v): k for k, v in enumerate(np.asarray(vehicle_ids).tolist())}
         out = np.zeros(len(self))
         for i, vid in enumerate(self.vehicle_ids.tolist()):
@@ -400,9 +412,12 @@ class TwinPicture:
         return replace(self, p_chase=out)
 
     def with_moves(self, table: IntentTable) -> TwinPicture:
-        """:param table: the intention estimate (its first horizon is used)
+        """This picture with the vehicles' lane-change probabilities.
+
+        :param table: the intention estimate (its first horizon is used)
         :return: this picture with :attr:`p_move` from an intention estimate (0 for a vehicle it did not judge,
-        such as the ego)"""
+        such as the ego)
+        """
         p_move = np.zeros((len(self), 2))
         for i, vid in enumerate(self.vehicle_ids.tolist()):
             k = table._index.get(int(vid))
@@ -528,8 +543,11 @@ class IntentionModel(Protocol):
         ...
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:param inputs: the model's inputs
-        :return: ``(N, len(horizons_s), 3)``: P(stay), P(left), P(right) within each horizon"""
+        """The lane-change probabilities of the inputs' vehicles.
+
+        :param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)``: P(stay), P(left), P(right) within each horizon
+        """
         ...
 
 
@@ -604,8 +622,11 @@ class LearnedIntention:
         return LearnedIntention(trained, tuple(horizons_s), arrays["mean"], arrays["scale"], layers, meta)
 
     def utility(self, inputs: IntentionInputs) -> np.ndarray:
-        """:param inputs: the model's inputs
-        :return: ``(N, 2, len(horizons_s))`` utilities of moving to each side within each horizon"""
+        """The network's utility of a lane change to each side.
+
+        :param inputs: the model's inputs
+        :return: ``(N, 2, len(horizons_s))`` utilities of moving to each side within each horizon
+        """
         n = len(inputs)
         x = np.concatenate([np.repeat(inputs.own[:, None, :], 2, axis=1), inputs.side], axis=2).reshape(2 * n, -1)
         a = (x - self.mean) / self.scale
@@ -623,8 +644,11 @@ class LearnedIntention:
         return np.stack([np.interp(self.horizons_s, trained, e) for e in np.eye(len(trained))])
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:param inputs: the model's inputs
-        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
+        """The lane-change probabilities of the inputs' vehicles.
+
+        :param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right
+        """
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         return choice_probabilities(self.utility(inputs), inputs.side_ok)
@@ -672,8 +696,11 @@ class PhysicsIntention:
     moving_mps: float = 0.5
 
     def predict(self, inputs: IntentionInputs) -> np.ndarray:
-        """:param inputs: the model's inputs
-        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right"""
+        """The lane-change probabilities of the inputs' vehicles, from their lateral motion and gaps.
+
+        :param inputs: the model's inputs
+        :return: ``(N, len(horizons_s), 3)`` probabilities of keeping the lane, moving left, moving right
+        """
         if len(inputs) == 0:
             return np.zeros((0, len(self.horizons_s), 3))
         off = inputs.side[:, :, SIDE_FEATURES.index("offset_05")]
@@ -740,8 +767,11 @@ class IntentTable:
         return vehicle_id in self._index
 
     def intents(self, vehicle_id: int) -> tuple[LaneChangeIntent, ...]:
-        """:param vehicle_id: the vehicle
-        :return: the vehicle's intents, shortest horizon first (empty when it was not judged)"""
+        """One vehicle's lane-change intents.
+
+        :param vehicle_id: the vehicle
+        :return: the vehicle's intents, shortest horizon first (empty when it was not judged)
+        """
         made = self._made.get(vehicle_id)
         if made is not None:
             return made
@@ -799,10 +829,13 @@ class IntentionEstimator:
         self.model = make_model(config)
 
     def estimate(self, store: FixStore, records: dict[int, DriverRecord], now_s: float, ego_id: int = 0) -> IntentTable:
-        """:param store: the cloud's fix histories
+        """Estimate the lane-change intention of the vehicles in the store.
+
+        :param store: the cloud's fix histories
         :param records: the tagger's driver records (read only)
         :param now_s: twin time [s]
         :param ego_id: the ego's id (a neighbour in the inputs, not judged itself)
-        :return: the intents of every vehicle with enough recent fixes at twin time ``now_s``"""
+        :return: the intents of every vehicle with enough recent fixes at twin time ``now_s``
+        """
         inputs = intention_inputs(store, records, self.road, now_s, ego_id, self.prior_aggressive)
         return IntentTable(inputs, self.model.predict(inputs), tuple(self.config.horizons_s))

@@ -108,16 +108,25 @@ class FixStore:
         return len(self._tracks)
 
     def vehicle_ids(self) -> list[int]:
-        """:return: ids with a history, sorted."""
+        """The vehicles with a history.
+
+        :return: ids with a history, sorted.
+        """
         return sorted(self._tracks)
 
     def n_fixes(self) -> int:
-        """:return: the number of fixes held in all (for memory checks)."""
+        """The number of fixes held.
+
+        :return: the number of fixes held in all (for memory checks).
+        """
         return sum(len(tr.times) for tr in self._tracks.values())
 
     def latest(self, vehicle_id: int) -> GnssFix | None:
-        """:param vehicle_id: the vehicle
-        :return: the newest fix of a vehicle, or ``None``."""
+        """A vehicle's newest fix.
+
+        :param vehicle_id: the vehicle
+        :return: the newest fix of a vehicle, or ``None``.
+        """
         track = self._tracks.get(vehicle_id)
         return track.fixes[-1] if track is not None and track.fixes else None
 

@@ -58,8 +58,11 @@ class HighwayMap:
     first_lane_y_m: float = 0.0
 
     def lane_of(self, y_m: np.ndarray | float) -> np.ndarray:
-        """:param y_m: lateral position(s) [m]
-        :return: the index of the lane whose centre is nearest to ``y_m``."""
+        """The lane at lateral position(s).
+
+        :param y_m: lateral position(s) [m]
+        :return: the index of the lane whose centre is nearest to ``y_m``.
+        """
         k = np.rint((np.asarray(y_m, dtype=float) - self.first_lane_y_m) / self.lane_width_m)
         return np.clip(k, 0, self.n_lanes - 1).astype(int)
 
@@ -70,14 +73,20 @@ class HighwayMap:
     def lane_centre_y_m(self, lane: np.ndarray) -> np.ndarray: ...
 
     def lane_centre_y_m(self, lane: np.ndarray | int) -> np.ndarray | float:
-        """:param lane: a lane index, or an array of them
-        :return: the lateral position of lane ``lane``'s centre [m] (an array for an array of lanes)."""
+        """The lateral position of a lane's centre [m].
+
+        :param lane: a lane index, or an array of them
+        :return: the lateral position of lane ``lane``'s centre [m] (an array for an array of lanes).
+        """
         return self.first_lane_y_m + lane * self.lane_width_m
 
     def lane_of_one(self, y_m: float) -> int:
-        """:param y_m: lateral position [m]
+        """The lane at one lateral position, in plain Python.
+
+        :param y_m: lateral position [m]
         :return: ``int(lane_of(y_m))`` for one finite position, without numpy's per-call cost
-        (``round`` rounds half to even, as ``np.rint``)."""
+        (``round`` rounds half to even, as ``np.rint``).
+        """
         k = (float(y_m) - self.first_lane_y_m) / self.lane_width_m
         if k != k or abs(k) > 1e9:  # NaN or absurd: numpy's answer
             return int(self.lane_of(y_m))
@@ -466,9 +475,12 @@ class Tagger:
         """Optional callback, called with (vehicle_id, lane change) for every judged change"""
 
     def record(self, vehicle_id: int, now_s: float) -> DriverRecord:
-        """:param vehicle_id: the vehicle
+        """A vehicle's driver record, made on first use.
+
+        :param vehicle_id: the vehicle
         :param now_s: twin time [s] (a new record's ``first_seen_s``)
-        :return: the record of a vehicle, created (with the prior's tag) when new."""
+        :return: the record of a vehicle, created (with the prior's tag) when new.
+        """
         rec = self.records.get(vehicle_id)
         if rec is None:
             rec = self.records[vehicle_id] = DriverRecord(vehicle_id, first_seen_s=now_s)

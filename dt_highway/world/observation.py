@@ -97,7 +97,10 @@ class FastKinematicObservation(KinematicObservation):
         return [ego, *(close[-self.vehicles_count + 1:] if close else [])]
 
     def observe(self) -> np.ndarray:
-        """:return: highway-env's Kinematics array (same values, computed without its DataFrame)"""
+        """The kinematic observation of the ego and the vehicles it observes.
+
+        :return: highway-env's Kinematics array (same values, computed without its DataFrame)
+        """
         if not self.env.road:
             return np.zeros(self.space().shape)
         ego, *close = self.observed()

@@ -43,21 +43,30 @@ EGO_ID = 0
 
 
 def vehicle_id(vehicle: Vehicle) -> int:
-    """:param vehicle: a vehicle or other road object
-    :return: the stable integer id of a vehicle (ego 0), or -1 for a foreign object."""
+    """A road object's stable vehicle id.
+
+    :param vehicle: a vehicle or other road object
+    :return: the stable integer id of a vehicle (ego 0), or -1 for a foreign object.
+    """
     return int(getattr(vehicle, "dt_id", -1))
 
 
 def driver_type(vehicle: Vehicle) -> str | None:
-    """:param vehicle: a vehicle on the road
-    :return: the ground-truth driver type of an NPC, ``None`` for the ego. Evaluation only."""
+    """A vehicle's true driver type.
+
+    :param vehicle: a vehicle on the road
+    :return: the ground-truth driver type of an NPC, ``None`` for the ego. Evaluation only.
+    """
     return getattr(vehicle, "dt_driver_type", None)
 
 
 def aggressiveness(vehicle: Vehicle) -> float | None:
-    """:param vehicle: a vehicle on the road
+    """A vehicle's true latent aggressiveness.
+
+    :param vehicle: a vehicle on the road
     :return: the latent aggressiveness of a continuum driver's vehicle, ``None`` for the ego and in
-        the two-class world. Evaluation only."""
+        the two-class world. Evaluation only.
+    """
     return getattr(vehicle, "dt_aggressiveness", None)
 
 
@@ -705,6 +714,9 @@ class TrafficManager:
         return False
 
     def drain_events(self) -> list[TrafficEvent]:
-        """:return: the events since the last call (and forget them: memory stays flat)."""
+        """Take the traffic events since the last call.
+
+        :return: the events since the last call (and forget them: memory stays flat).
+        """
         out, self.events = self.events, []
         return out

@@ -120,7 +120,9 @@ class PointDetector(nn.Module):
         nn.init.constant_(bias, -math.log((1 - 0.01) / 0.01))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """:param x: ``(B, C, H, W)`` normalised input (see :func:`to_input`), H and W multiples of 32.
+        """Run the network on a batch of images.
+
+        :param x: ``(B, C, H, W)`` normalised input (see :func:`to_input`), H and W multiples of 32.
 
         :return: heatmap logits ``(B, 1, H / 4, W / 4)`` and edge distances ``(B, 4, H / 4, W / 4)`` [px]
         """

@@ -278,7 +278,10 @@ def check_training(out: str | Path, arch: Architecture = Architecture(), setting
 
 
 def _check(arch: Architecture, settings: TrainSettings) -> None:
-    """:raises ValueError: on a batch, network size or time budget that cannot train"""
+    """Check that the architecture and settings can train.
+
+    :raises ValueError: on a batch, network size or time budget that cannot train
+    """
     if settings.batch < 2 or settings.batch % 2 or settings.batch // 2 > settings.replay:
         raise ValueError(f"the batch (--batch) must be even, from 2 to {2 * settings.replay} (got {settings.batch})")
     if not (32 <= arch.width_px <= 4096 and 32 <= arch.height_px <= 4096):
@@ -302,7 +305,10 @@ class _Resume:
 
 
 def _read_checkpoint(path: Path, arch: Architecture) -> _Resume:
-    """:raises ValueError: if the checkpoint cannot be read or holds another network than ``arch``"""
+    """Read a training checkpoint to resume from.
+
+    :raises ValueError: if the checkpoint cannot be read or holds another network than ``arch``
+    """
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
         saved = Architecture.from_dict(state["arch"])
@@ -349,7 +355,10 @@ class _ReplayPool:
         self.cursor = 0
 
     def mix(self, batch: list[torch.Tensor], half: int, gen: torch.Generator) -> list[torch.Tensor]:
-        """:return: ``batch`` followed by ``half`` frames drawn from the pool (``gen``), once it holds that many"""
+        """Add replayed frames from the pool to a batch.
+
+        :return: ``batch`` followed by ``half`` frames drawn from the pool (``gen``), once it holds that many
+        """
         if self.filled < half:
             return batch
         pick = torch.randint(0, self.filled, (half,), generator=gen)
