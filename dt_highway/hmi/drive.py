@@ -771,7 +771,7 @@ def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, inf
     if trial.error is not None:
         raise trial.error
     _hold_crash_banner(win, trial, last, opts.fps)
-    paused_s = round(sum(p["duration_s"] for p in trial.pauses), 3)
+    paused_s = _paused_s(trial)
     log.meta.update(end_reason=trial.end_reason, collision=_collision_meta(trial, opts),
                     cut_short=trial.status == "ended_by_collision" and trial.t_sim < trial.duration - 1e-6,
                     pauses=trial.pauses, paused_s=paused_s,
@@ -779,6 +779,11 @@ def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, inf
     if trial.status != "completed":
         log.close(trial.status, trial.end_reason)
     return trial, frame_ms, loop_wall_s
+
+
+def _paused_s(trial: _Trial) -> float:
+    """The trial's time spent paused, to the millisecond [s]."""
+    return round(sum(p["duration_s"] for p in trial.pauses), 3)
 
 
 def realtime_ratio(sim_s: float, wall_s: float, paused_s: float = 0.0) -> float | None:
@@ -955,7 +960,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                                                       None if wheel is None else wheel[0])
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
-            ratio = realtime_ratio(trial.t_sim, loop_wall_s, sum(p["duration_s"] for p in trial.pauses))
+            ratio = realtime_ratio(trial.t_sim, loop_wall_s, _paused_s(trial))  # as in meta.json
             slow = slow_trial_line(ratio)
             if slow is not None:
                 say(slow)
