@@ -442,13 +442,15 @@ class ShamOverlay:
 
 # ----------------------------------------------------------------------------- drawing
 def _label_lines(item: Mapping[str, Any]) -> tuple[str, str]:
+    """A full label's two lines: the head, then the confidence, the distance and, on a cut-in mark of a car the twin
+    also tags, "AGGRESSIVE" last (first, "AGGRESSIVE 73 %" read as the driver's aggressiveness; the percentage is
+    the cut-in's)."""
     parts = []
-    if item.get("cue") == THREAT_CUE:
+    threat = item.get("cue") == THREAT_CUE
+    if threat:
         side = item.get("side")
         # the arrows stand on the side the car comes from and point the way it moves: into the ego's lane
         head = ">> CUTTING IN" if side == "left" else "CUTTING IN <<" if side == "right" else "CUTTING IN"
-        if item.get("aggressive"):
-            parts.append("AGGRESSIVE")
     else:
         head = str(item.get("label", TYPE_LABEL)).upper()
     conf = item.get("confidence")
@@ -457,6 +459,8 @@ def _label_lines(item: Mapping[str, Any]) -> tuple[str, str]:
     dist = item.get("distance_m")
     if dist is not None and math.isfinite(float(dist)):
         parts.append(f"{float(dist):.0f} m")
+    if threat and item.get("aggressive"):
+        parts.append("AGGRESSIVE")
     return head, "  ".join(parts)
 
 

@@ -117,7 +117,9 @@ def test_a_trial_that_did_not_keep_real_time_is_said():
     assert drive.realtime_ratio(0.2, 0.4) is None  # too short to judge
     assert drive.slow_trial_line(1.0) is None and drive.slow_trial_line(None) is None
     line = drive.slow_trial_line(0.62)
-    assert line is not None and "0.62 of real time" in line and "slow motion" in line
+    assert line is not None and "0.620 of real time" in line and "slow motion" in line
+    edge = drive.slow_trial_line(0.947)  # below 0.95, and not rounded up to it
+    assert edge is not None and "0.947 of real time" in edge
 
 
 def test_a_script_built_in_code_that_ends_paused_ends_the_trial(tmp_path):
@@ -448,6 +450,7 @@ def test_a_crash_under_continue_puts_the_ego_back_and_counts_it(tmp_path):
     after = s.loc[resets[0]["t_s"] + 0.01:resets[0]["t_s"] + 0.5]
     assert not after["crashed"].any()
     assert after["x_m"].iloc[0] == pytest.approx(resets[0]["x_m"], abs=3.0)
+    assert resets[0]["lane"] == after["lane"].iloc[0]  # lane ids counted as in steps.csv (0 = leftmost)
     assert after["speed_mps"].iloc[0] == pytest.approx(resets[0]["speed_mps"], abs=1.0)
     gap = after["gap_m"].iloc[0]
     assert not gap < max(30.0, 2.0 * resets[0]["speed_mps"]) - 3.0  # a clear gap ahead (NaN: no leader)

@@ -171,7 +171,7 @@ def test_the_status_line_names_what_the_experimenter_needs():
     assert line.split(" ", 1)[1] == "P03 | Trial 2 of 2 | adas | attempt 2 | 61.2 s | 2 crashes | 1 pause | aborted (SIGTERM)"
     slow = status_line("P03", plan[3], 0, {"status": "completed", "reason": "time limit", "trial_sim_s": 120.0,
                                            "realtime_ratio": 0.62}, 0)
-    assert slow.split(" ", 1)[1] == ("P03 | Trial 2 of 2 | adas | attempt 1 | 120.0 s | 0 crashes | SLOW: 0.62 of real time"
+    assert slow.split(" ", 1)[1] == ("P03 | Trial 2 of 2 | adas | attempt 1 | 120.0 s | 0 crashes | SLOW: 0.620 of real time"
                                      " | completed (time limit)")
     on_time = status_line("P03", plan[3], 0, {"status": "completed", "reason": "time limit", "trial_sim_s": 120.0,
                                               "realtime_ratio": 0.99}, 0)
@@ -364,10 +364,13 @@ def test_a_whole_scripted_session_keeps_every_attempt_and_the_report_lists_the_a
 
     monkeypatch.setattr(pygame, "quit", quit_all)
     monkeypatch.setattr(pygame.display, "quit", lambda: (closed.append("display.quit"), real_display_quit())[1])
+    opened: list[tuple] = []  # pygame-ce makes a new window at every set_mode: one for the whole session
+    real_set_mode = pygame.display.set_mode
+    monkeypatch.setattr(pygame.display, "set_mode", lambda *a, **k: (opened.append(a), real_set_mode(*a, **k))[1])
     assert main(["session", "--participant", "P01", "--duration", "3", "--out", str(out), "--keys-from", str(keys),
                  "--answers-from", str(answers), "--screenshot-every", "100", "--screenshots", str(shots), *FAST]) == 0
     monkeypatch.undo()
-    assert closed == ["pygame.quit"]
+    assert closed == ["pygame.quit"] and len(opened) == 1
     said_cli = capsys.readouterr().out
     assert "P01-practice-baseline: already completed, skipped" in said_cli and "4 of 4 trials done" in said_cli
 

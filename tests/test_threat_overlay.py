@@ -212,6 +212,9 @@ def test_a_threat_mark_is_drawn_amber_with_its_side():
     # the arrows stand on the side the car comes from and point the way it moves (into the ego's lane)
     assert label_layout([threat], 640, 360)[0].head == ">> CUTTING IN"
     assert label_layout([{**threat, "side": "right"}], 640, 360)[0].head == "CUTTING IN <<"
+    # a car the twin also tags aggressive: the word after the percentage (the cut-in's) and the distance
+    both = label_layout([{**threat, "aggressive": True, "label": threat_label("left", True)}], 640, 360)[0]
+    assert (both.head, both.sub) == (">> CUTTING IN", "80 %  30 m  AGGRESSIVE")
     assert threat_label("right", True) == "cutting in from right + aggressive driver"
 
 

@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from dt_highway.config import ConfigError, read_toml
 from dt_highway.hmi.marks_example import marks_example
+from dt_highway.hmi.window import open_display
 
 DEFAULT_PROTOCOL = Path(str(resources.files("dt_highway.hmi").joinpath("protocols", "default.toml")))
 """The protocol a session follows unless told otherwise"""
@@ -451,8 +452,7 @@ class ScreenWindow:
     def _surface(self) -> pygame.Surface:
         """The window's surface (the window is opened again after a trial closed pygame)."""
         if not pygame.display.get_init() or pygame.display.get_surface() is None:
-            pygame.display.init()
-            pygame.display.set_mode(self.size, pygame.FULLSCREEN if self.fullscreen else pygame.RESIZABLE)
+            open_display(self.size, self.fullscreen)  # the same kind of window a trial opens: it keeps this one
         pygame.display.set_caption(self.caption)
         surface = pygame.display.get_surface()
         assert surface is not None

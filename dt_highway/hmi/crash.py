@@ -150,7 +150,8 @@ def place_ego_after_crash(env: DTHighwayEnv, min_gap_m: float = 30.0, headway_s:
     :param headway_s: the gap is at least this headway at the new speed [s]
     :param step_m: search step along the lane [m]
     :param search_m: how far ahead to search for a clear place [m]
-    :return: ``x_m`` (new position), ``moved_m`` (along the lane), ``lane`` (1 = leftmost), ``speed_mps``
+    :return: ``x_m`` (new position), ``moved_m`` (along the lane), ``lane`` (its id, 0 = leftmost, as the trial
+        log's ``lane`` column and ``lane_change`` events), ``speed_mps``
     """
     road, ego = env.road, env.vehicle
     lane_index = ego.lane_index
@@ -175,7 +176,7 @@ def place_ego_after_crash(env: DTHighwayEnv, min_gap_m: float = 30.0, headway_s:
     ego.lane_index, ego.lane = lane_index, lane
     if hasattr(ego, "target_lane_index"):
         ego.target_lane_index = lane_index
-    return {"x_m": float(ego.position[0]), "moved_m": s - s_ego, "lane": int(lane_index[2]) + 1, "speed_mps": speed}
+    return {"x_m": float(ego.position[0]), "moved_m": s - s_ego, "lane": int(lane_index[2]), "speed_mps": speed}
 
 
 class CrashView:

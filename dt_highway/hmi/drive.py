@@ -810,7 +810,7 @@ def slow_trial_line(ratio: float | None) -> str | None:
     """
     if ratio is None or ratio >= REALTIME_WARN_BELOW:
         return None
-    return (f"  warning: the simulation kept {ratio:.2f} of real time: the participant drove in slow motion (the "
+    return (f"  warning: the simulation kept {ratio:.3f} of real time: the participant drove in slow motion (the "
             "machine was too slow; see 'Frame times' in the keyboard guide)")
 
 

@@ -11,11 +11,11 @@ the window's size. No simulation runs and no twin or detector is involved: the m
 cars by projecting their outlines.
 
 The scene: the ego in the middle lane; a car in the left lane 16 m ahead, already angled towards the
-ego's lane, with the cut-in mark (">> CUTTING IN", amber); a car in the right lane 34 m ahead with the
-driver-type mark ("AGGRESSIVE DRIVER", red); a car in the ego's lane 60 m ahead with a driver-type mark beyond
-the two labelled ones (the small "!" tag of :func:`~dt_highway.overlay.label_layout`); a car 80 m ahead without a
-mark. Every overlay
-condition (the placebo's too) explains the display with this one picture, so it tells none of them
+ego's lane, with the cut-in mark (">> CUTTING IN", amber; the twin also tags it aggressive); a car in the
+right lane 34 m ahead with the driver-type mark ("AGGRESSIVE DRIVER", red); a car in the right lane 70 m
+ahead with a driver-type mark beyond the two labelled ones (the small "!" tag of
+:func:`~dt_highway.overlay.label_layout`); a car 80 m ahead without a mark. Every overlay condition (the
+placebo's too) explains the display with this one picture, so it tells none of them
 apart; in a given trial the display shows one or both kinds of mark.
 """
 
@@ -40,7 +40,7 @@ LANE_WIDTH_M = 4.0
 """The example road's lane width [m] (highway-env's)"""
 EGO = Pose(0.0, LANE_WIDTH_M, 0.0)
 """The ego: the middle of three lanes [m], [rad]"""
-CARS = ((7, 16.0, 1.6, 0.12, "threat"), (3, 34.0, 8.0, 0.0, "type"), (5, 60.0, 4.0, 0.0, "type"), (9, 80.0, 0.2, 0.0, ""))
+CARS = ((7, 16.0, 1.6, 0.12, "threat"), (3, 34.0, 8.0, 0.0, "type"), (5, 70.0, 8.0, 0.0, "type"), (9, 80.0, 0.2, 0.0, ""))
 """The other cars: id, ``x`` [m], ``y`` [m], heading [rad], the mark it gets (``""``: none)"""
 CAR_SIZE_M = (5.0, 2.0)
 """Length and width of the cars [m] (highway-env's)"""
@@ -89,7 +89,7 @@ def marks_example() -> np.ndarray:
         item = {"vehicle_id": vid, "box": _outline_box(uv, size), "confidence": CONFIDENCE[cue],
                 "distance_m": round(x_m - EGO.x_m - CAR_SIZE_M[0] / 2 - cfg.mount.forward_m)}
         if cue == "threat":
-            item |= {"cue": THREAT_CUE, "side": "left", "aggressive": False, "label": threat_label("left", False)}
+            item |= {"cue": THREAT_CUE, "side": "left", "aggressive": True, "label": threat_label("left", True)}
         else:
             item |= {"cue": TYPE_CUE, "label": TYPE_LABEL}
         items.append(item)

@@ -291,7 +291,7 @@ def status_line(participant: str, trial: SessionTrial, attempt: int, result: dic
     :param result: what :func:`~dt_highway.hmi.drive.run_drive` returned, with ``reason``
     :param crashes: the collisions logged in the attempt
     :return: e.g. ``12:03:44 P01 | Trial 2 of 4 | adas-threat | attempt 1 | 120.0 s | 1 crash | completed (time limit)``
-        (with ``| SLOW: 0.62 of real time`` when the trial kept less than :data:`~dt_highway.hmi.drive.REALTIME_WARN_BELOW`)
+        (with ``| SLOW: 0.620 of real time`` when the trial kept less than :data:`~dt_highway.hmi.drive.REALTIME_WARN_BELOW`)
     """
     sim = result.get("trial_sim_s")
     driven = f"{sim:.1f} s" if isinstance(sim, (int, float)) else "- s"
@@ -301,7 +301,7 @@ def status_line(participant: str, trial: SessionTrial, attempt: int, result: dic
     return (f"{time.strftime('%H:%M:%S')} {participant} | {trial.label} | {trial.condition} | attempt {attempt + 1} | "
             f"{driven} | {crashes} crash{'' if crashes == 1 else 'es'}"
             + (f" | {pauses} pause{'' if pauses == 1 else 's'}" if pauses else "")
-            + (f" | SLOW: {ratio:.2f} of real time" if slow else "")
+            + (f" | SLOW: {ratio:.3f} of real time" if slow else "")
             + f" | {result['status']} ({result['reason']})")
 
 

@@ -88,6 +88,25 @@ class _Signals(SignalScope):
             trial.inputs.put(("signal", name, time.monotonic()))
 
 
+def open_display(size: tuple[int, int], fullscreen: bool = False) -> pygame.Surface:
+    """The window to draw on: the one already open when there is one of the same kind (a session's, kept from its
+    first screen to its last), else a new one. pygame-ce makes a new window at every ``set_mode``, so calling it
+    again would show the participant the desktop (and move the window) at each trial's start.
+
+    :param size: the window's size when one is made ``(width, height)`` [px] (a window already open keeps its own)
+    :param fullscreen: fill the screen
+    :return: the window's surface
+    """
+    pygame.display.init()
+    pygame.display.set_caption(WINDOW_TITLE)  # before the window exists: it never shows pygame's own title
+    current = pygame.display.get_surface()
+    if current is not None and pygame.display.is_fullscreen() == fullscreen:
+        return current
+    if fullscreen:
+        return pygame.display.set_mode((0, 0), pygame.FULLSCREEN)
+    return pygame.display.set_mode(size, pygame.RESIZABLE)
+
+
 class _Window:
     """The trial's pygame window: pictures are composed at the camera's size and shown scaled to
     the window (aspect kept, black bars). :meth:`show` puts a picture on the window (blit and flip)
@@ -108,12 +127,9 @@ class _Window:
 
     def __init__(self, size: tuple[int, int], fullscreen: bool = False,
                  on_frame: Callable[[np.ndarray], None] | None = None, signals: _Signals | None = None) -> None:
-        pygame.display.init()
         self.size = size
         self.fullscreen = fullscreen
-        self.screen = pygame.display.set_mode((0, 0), pygame.FULLSCREEN) if fullscreen \
-            else pygame.display.set_mode(size, pygame.RESIZABLE)
-        pygame.display.set_caption(WINDOW_TITLE)
+        self.screen = open_display(size, fullscreen)
         self.clock = pygame.time.Clock()
         self.on_frame = on_frame
         self.signals = signals or _Signals()
