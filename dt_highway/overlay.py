@@ -471,7 +471,8 @@ class Banner(NamedTuple):
     :param box: the box clipped to the image ``(x1, y1, x2, y2)`` [px]
     :param label: the label's rectangle ``(x, y, w, h)`` [px], ``None`` when dropped
     :param head: the label's first line
-    :param sub: its second line (confidence, distance; may be empty)
+    :param sub: its second line (confidence, distance, and "AGGRESSIVE" on a cut-in mark of a car the twin tags so;
+        may be empty)
     :param moved: the label was moved up past another one (a leader line joins it to the box)
     """
 
@@ -528,7 +529,7 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     :param keep_out: rectangles ``(x, y, w, h)`` [px] no label may cover (drawn over the picture later)
     :param bottom_px: the row [px] boxes stop at (the top of a band drawn over the picture's bottom later, such as
         the driving window's HUD: a box does not run under it); ``None``: the image's bottom
-    :return: one banner per mark whose box is on the image, in priority order
+    :return: one banner per mark whose box is on the image above ``bottom_px``, in priority order
     """
     scale = max(height / 720.0, 0.3)  # text and lines grow with the picture
     thick = max(1, round(3 * scale))

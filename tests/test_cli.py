@@ -67,7 +67,7 @@ def test_counts_with_an_upper_bound_are_refused_in_one_line(args, message, capsy
         main(args)
     assert stop.value.code == 2
     err = capsys.readouterr().err
-    assert message in err and "Traceback" not in err
+    assert message in err and "Traceback" not in err and err.count("\n") == 1
 
 
 def test_unknown_scenario_file(capsys):

@@ -108,13 +108,14 @@ def test_a_key_held_through_the_countdown_acts_and_is_logged_at_t0_and_pauses_ar
     walls = {e["kind"]: datetime.fromisoformat(e["wall_time"]) for e in (starts[0], ends[0])}
     assert (walls["pause_end"] - walls["pause_start"]).total_seconds() == pytest.approx(1.0, abs=0.08)
     assert all("wall_time" in e for e in trial.events)  # every event, the recorder's too
-    # how much of real time the trial kept, pauses left out (the value depends on the machine's load)
-    assert trial.meta["realtime_ratio"] == result["realtime_ratio"] and 0.0 < result["realtime_ratio"] <= 1.1
+    # how much of real time the trial kept, pauses left out: not judged on a trial this short (under 10 s)
+    assert "realtime_ratio" in trial.meta and trial.meta["realtime_ratio"] is result["realtime_ratio"] is None
 
 
 def test_a_trial_that_did_not_keep_real_time_is_said():
     assert drive.realtime_ratio(30.0, 32.5) == 0.923 and drive.realtime_ratio(30.0, 41.0, paused_s=11.0) == 1.0
-    assert drive.realtime_ratio(0.2, 0.4) is None  # too short to judge
+    assert drive.realtime_ratio(1.45, 1.55) is None  # too short to judge: a step's lag would read as slow motion
+    assert drive.realtime_ratio(9.0, 25.0, paused_s=16.0) is None
     assert drive.slow_trial_line(1.0) is None and drive.slow_trial_line(None) is None
     line = drive.slow_trial_line(0.62)
     assert line is not None and "0.620 of real time" in line and "slow motion" in line
@@ -333,6 +334,7 @@ def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_on
     # "Trial saved" waited for Enter: the arrow and the letter did not dismiss it
     assert len(end_shown) == 1 and t_end - end_shown[0] >= 0.55
     # the experimenter's line in the terminal
+    lines = [line for line in lines if not line.startswith("  warning:")]  # a slow machine's warning, if any
     assert len(lines) == 1 and lines[0].startswith("P01 sham: aborted (quit by the participant), ")
     assert "0 crashes" in lines[0] and " of 30 s" in lines[0] and str(tmp_path) in lines[0]
 
@@ -638,6 +640,23 @@ def test_trials_simulate_at_30_hz_unless_told_otherwise(tmp_path):
     assert (cfg.camera.width_px, cfg.camera.height_px) == (1280, 720)
     cfg, _, f = _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml", simulation_hz=None))
     assert f == 15  # the scenario's
+    with pytest.raises(ConfigError, match=r"offscreen_rendering = false is not for keyboard trials"):
+        _trial_config(DriveOptions("P1", "adas", tmp_path, scenario="envs/highway-trial.toml",
+                                   overrides=["highway.offscreen_rendering=false"]))
+
+
+def test_a_trial_closes_its_window_unless_asked_to_keep_it_for_a_session(tmp_path):
+    script = "0.1 down UP\n0.5 up UP\n"
+    run_drive(_opts(tmp_path / "a", keys_from=KeyScript.parse(script)), say=lambda s: None)
+    assert not pygame.display.get_init() or pygame.display.get_surface() is None  # dt-highway drive: closed
+    try:
+        run_drive(_opts(tmp_path / "b", keys_from=KeyScript.parse(script)), say=lambda s: None, keep_window=True)
+        window = pygame.display.get_surface()
+        assert window is not None
+        run_drive(_opts(tmp_path / "c", keys_from=KeyScript.parse(script)), say=lambda s: None, keep_window=True)
+        assert pygame.display.get_surface() is window  # the next trial draws in the same window
+    finally:
+        pygame.quit()
 
 
 def test_the_mirror_hook_draws_what_render_mirrors_returns(tmp_path, monkeypatch):

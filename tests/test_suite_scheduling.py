@@ -49,6 +49,7 @@ def test_another_dist_mode_is_left_to_pytest_xdist():
 def test_a_test_that_leaves_sigint_changed_is_named_and_the_next_sees_the_handler_back(tmp_path):
     """One fresh-check saw a test fail because an earlier one on its worker had left SIGINT ignored."""
     import shutil
+    import signal
     import subprocess
     import sys
 
@@ -56,7 +57,10 @@ def test_a_test_that_leaves_sigint_changed_is_named_and_the_next_sees_the_handle
     (tmp_path / "test_leak.py").write_text(
         "import signal\n\n\ndef test_leaks():\n    signal.signal(signal.SIGINT, signal.SIG_IGN)\n\n\n"
         "def test_after():\n    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n")
+    # the child's SIGINT as a terminal's, not inherited from whatever runs the tests (a suite started as a background
+    # job, `cmd &` in a script, runs with SIGINT ignored, and a Python started so keeps it ignored)
     run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider",
-                          str(tmp_path / "test_leak.py")], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+                          str(tmp_path / "test_leak.py")], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert "2 passed" in run.stdout, run.stdout + run.stderr
     assert "test_leak.py::test_leaks left the SIGINT handler <Handlers.SIG_IGN: 1>" in run.stdout, run.stdout

@@ -446,11 +446,12 @@ class ScreenWindow:
     shown: list[str] = field(default_factory=list)
 
     def open(self) -> None:
-        """Open the window now (when a trial closed it), e.g. for the questionnaires to use it."""
+        """Open the window now when none is open (a trial's window stays open in a session), e.g. for the
+        questionnaires to use it."""
         self._surface()
 
     def _surface(self) -> pygame.Surface:
-        """The window's surface (the window is opened again after a trial closed pygame)."""
+        """The window's surface (opened when none is: :func:`~dt_highway.hmi.window.open_display`)."""
         if not pygame.display.get_init() or pygame.display.get_surface() is None:
             open_display(self.size, self.fullscreen)  # the same kind of window a trial opens: it keeps this one
         pygame.display.set_caption(self.caption)

@@ -29,7 +29,8 @@ crash. The metadata's ``collision`` holds the count and the times.
 Every trial is logged like a scripted one (:mod:`dt_highway.metrics.trial_log`), plus every key press
 and release and the keys held at each step. ``--keys-from`` replays a key script (no prompts or
 confirmations then), ``--screenshot-every`` saves PNGs of what the participant saw. Participants
-never see a file path: paths and a one-line status per trial go to the terminal.
+never see a file path: paths and a one-line status per trial go to the terminal (and a warning line when the
+trial did not keep real time: :func:`realtime_ratio`).
 Headless: ``SDL_VIDEODRIVER=offscreen``.
 """
 
@@ -87,11 +88,11 @@ from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 
 __all__ = [  # this module's own, and (re-exported) what the split of this module moved to crash, picture, screens and window
     "CRASH_BANNER_S", "CRASH_FLASH_S", "CRASH_POLICIES", "DRIVING_KEYS", "END_SCREEN_S", "LEGEND", "MIRROR_FRACTION",
-    "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "REALTIME_WARN_BELOW", "SIZE_LIMITS_PX", "TRIAL_SIMULATION_HZ",
-    "WINDOW_TITLE", "CrashBeep", "DriveOptions", "Hud", "SignalScope", "beep_samples", "card", "compose_frame",
-    "crash_layer", "dialog", "drive_config", "held_at_start", "hud_band_height", "open_wheel", "parse_size",
-    "place_ego_after_crash", "realtime_ratio", "run_drive", "show_card", "slow_trial_line", "check_free", "trial_dir",
-    "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
+    "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "REALTIME_MIN_S", "REALTIME_WARN_BELOW", "SIZE_LIMITS_PX",
+    "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep", "DriveOptions", "Hud", "SignalScope", "beep_samples", "card",
+    "compose_frame", "crash_layer", "dialog", "drive_config", "held_at_start", "hud_band_height", "open_wheel",
+    "parse_size", "place_ego_after_crash", "realtime_ratio", "run_drive", "show_card", "slow_trial_line", "check_free",
+    "trial_dir", "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
 ]
 
 TRIAL_SIMULATION_HZ = 30
@@ -102,6 +103,11 @@ time at 640x360 and 1280x720 (simulated / wall 0.999, 61 frames/s, frame p99 5.2
 REALTIME_WARN_BELOW = 0.95
 """A trial whose simulated time is less than this share of its wall time (pauses left out) ran in slow motion:
 the experimenter is told (:func:`realtime_ratio`) [-]"""
+
+REALTIME_MIN_S = 10.0
+"""The wall time [s] (pauses left out) a trial must run for its :func:`realtime_ratio` to be judged: the
+simulation lags the clock by up to one step and the window's loop ends a moment after the last step, about
+0.05-0.1 s, which would read as slow motion in a trial stopped after a second or two"""
 
 SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
 """Allowed window sizes: (width min, max), (height min, max) [px]"""
@@ -598,6 +604,7 @@ def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
 
     :return: the configuration, the ``--set`` strings (the trial's simulation frequency, size and
         ``--duration`` among them; the caller's win) and the simulation frequency [Hz]
+    :raises ConfigError: one line, on ``highway.offscreen_rendering = false``
     """
     overrides = _trial_overrides(opts)
     # first the simulation frequency alone (decisions at 1 Hz divide any), then decisions at that frequency
@@ -605,6 +612,9 @@ def _trial_config(opts: DriveOptions) -> tuple[DTConfig, list[str], float]:
     f_sim = cfg.highway.simulation_frequency
     cfg = load_config(opts.scenario, [*overrides, f"highway.policy_frequency={f_sim}"],
                       drive_config(opts.condition, opts.steering))
+    if cfg.highway.offscreen_rendering is False:  # highway-env's viewer would open its own window over the trial's
+        raise ConfigError("highway.offscreen_rendering = false is not for keyboard trials: the mini-map is drawn into "
+                          "the trial's window (leave it unset or true)")
     return cfg, overrides, f_sim
 
 
@@ -793,11 +803,11 @@ def realtime_ratio(sim_s: float, wall_s: float, paused_s: float = 0.0) -> float 
     :param sim_s: simulated time of the trial [s]
     :param wall_s: wall time of the trial [s]
     :param paused_s: wall time spent paused [s]
-    :return: the ratio [-], rounded to 0.001; ``None`` when the trial ran for less than a second of wall time
-        (too short to judge)
+    :return: the ratio [-], rounded to 0.001; ``None`` when the trial ran for less than :data:`REALTIME_MIN_S` of
+        wall time (too short to judge)
     """
     active = wall_s - paused_s
-    if active < 1.0:
+    if active < REALTIME_MIN_S:
         return None
     return round(sim_s / active, 3)
 
@@ -896,7 +906,8 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
     :param opts: the trial
     :param on_frame: called with every picture put on the window (tests, recording), at the composed
         size: each distinct picture once (screens before and after the trial too), never a repeat
-    :param say: where the experimenter's one-line status of the trial goes (default: stderr)
+    :param say: where the experimenter's one-line status of the trial goes, and the slow-trial warning
+        (:func:`slow_trial_line`) when there is one (default: stderr)
     :param keep_window: leave the window open at the end, for the next screen to draw on (a session: the
         participant never sees the desktop between screens and trials); the caller closes it (``pygame.quit()``).
         Otherwise the window closes with the trial

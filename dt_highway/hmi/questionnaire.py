@@ -746,7 +746,7 @@ def run_questionnaires(window_size: tuple[int, int], names: list[str], trial_dir
     owns_window = not (pygame.display.get_init() and pygame.display.get_surface() is not None)
     pygame.display.init()
     pygame.font.init()
-    _FONTS.clear()  # fonts made before a pygame.quit() (the trial's window) are invalid now
+    _FONTS.clear()  # fonts made before a pygame.quit() (a window closed since, e.g. `dt-highway drive`'s) are invalid
     repeat = pygame.key.get_repeat()
     try:
         if owns_window:
