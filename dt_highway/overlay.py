@@ -512,7 +512,9 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     Labels are placed in priority order (threats first, then nearest first). A label sits just
     above its box; when there is no room above (the image's top edge, or a ``keep_out`` area such
     as the driving window's mirror or trial label), at the top inside the box when the box is tall
-    enough (a car close by), else just below the box. The ``full_labels`` first ones within
+    enough (a car close by), else just below the box. A label above its box that would cover another
+    mark's box (a farther car, higher in the picture) goes inside its own box too when that can hold it:
+    a label on another car's box reads as that car's. The ``full_labels`` first ones within
     ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or ">> CUTTING IN", confidence,
     distance), the others a small "!" tag. A label above or below its box that would overlap one
     already placed is moved up once, just above the one in the way, and joined to its box by a leader
@@ -537,13 +539,11 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     placed: list[tuple[int, int, int, int]] = []
     out = []
     n_full = 0
-    for i in sorted(range(len(items)), key=lambda k: _priority(items[k])):
+    shown = {i: box for i in range(len(items)) if (box := _clipped_box(items[i]["box"], width, floor)) is not None}
+    for i in sorted(shown, key=lambda k: _priority(items[k])):
         item = items[i]
-        x1, y1, x2, y2 = (float(v) for v in item["box"])
-        if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= width or y1 >= floor:
-            continue
-        p1 = (int(round(max(x1, 0))), int(round(max(y1, 0))))
-        p2 = (int(round(min(x2, width - 1))), int(round(min(y2, floor - 1))))
+        p1, p2 = shown[i][:2], shown[i][2:]
+        others = [(a, b, c - a, d - b) for j, (a, b, c, d) in shown.items() if j != i]
         dist = item.get("distance_m")
         d = float(dist) if dist is not None else math.nan
         if n_full < full_labels and (not math.isfinite(d) or d <= label_range_m):
@@ -553,15 +553,24 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
             head, sub = "!", ""
         bw, bh, pad, _, _, _ = _text_size(head, sub, scale)
         bx = int(np.clip((p1[0] + p2[0]) / 2 - bw / 2, 0, max(width - bw, 0)))
-        rect, moved = _place_label(bx, bw, bh, (p1[1], p2[1]), (thick, pad), height, placed, keep_out)
+        rect, moved = _place_label(bx, bw, bh, (p1[1], p2[1]), (thick, pad), height, placed, keep_out, others)
         if rect is not None:
             placed.append(rect)
         out.append(Banner(i, (p1[0], p1[1], p2[0], p2[1]), rect, head, sub, moved))
     return out
 
 
+def _clipped_box(box: Sequence[float], width: int, floor: int) -> tuple[int, int, int, int] | None:
+    """A mark's box ``(x1, y1, x2, y2)`` [px] clipped to the image above row ``floor``, ``None`` when none of it is."""
+    x1, y1, x2, y2 = (float(v) for v in box)
+    if not all(map(math.isfinite, (x1, y1, x2, y2))) or x2 <= 0 or y2 <= 0 or x1 >= width or y1 >= floor:
+        return None
+    return (int(round(max(x1, 0))), int(round(max(y1, 0))), int(round(min(x2, width - 1))), int(round(min(y2, floor - 1))))
+
+
 def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[int, int], height: int,
-                 placed: Sequence[Rect], keep_out: Sequence[Rect]) -> tuple[Rect | None, bool]:
+                 placed: Sequence[Rect], keep_out: Sequence[Rect],
+                 other_boxes: Sequence[Rect] = ()) -> tuple[Rect | None, bool]:
     """A label's rectangle (:func:`label_layout`), ``None`` when dropped, and whether it was moved up past
     another label.
 
@@ -573,6 +582,8 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
     :param height: image height [px]
     :param placed: the labels placed so far
     :param keep_out: the areas no label may cover
+    :param other_boxes: the other marks' boxes ``(x, y, w, h)`` [px]: a label above its box that would cover one
+        goes inside its own box when that is tall enough (a label on another car's box reads as that car's)
     """
     (top, bottom), (thick, pad) = box_y, gaps
 
@@ -587,6 +598,11 @@ def _place_label(bx: int, bw: int, bh: int, box_y: tuple[int, int], gaps: tuple[
 
     above = top - bh - thick
     if 0 <= above and not _overlaps((bx, above, bw, bh), keep_out):
+        if _overlaps((bx, above, bw, bh), other_boxes):
+            room = [y for y in range(top + thick, bottom - thick - bh + 1, max(1, pad))
+                    if free(y) and not _overlaps((bx, y, bw, bh), other_boxes)]
+            if room:
+                return (bx, room[0], bw, bh), False
         in_way = _overlaps((bx, above, bw, bh), placed)
         return past(in_way) if in_way else ((bx, above, bw, bh), False)
     # no room above the box: inside it, as high as is free (its top, or just below an area or label in the

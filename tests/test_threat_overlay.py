@@ -202,6 +202,24 @@ def test_labels_keep_out_of_what_the_screen_draws_over_the_picture():
     assert dropped.label is None and dropped.box == (250, 72, 290, 100)
 
 
+def test_a_label_does_not_sit_on_another_marks_box_when_its_own_box_can_hold_it():
+    """A near car's label above its box would cover a farther marked car's box, and read as that car's: it goes
+    inside its own (tall) box; a box too small to hold it keeps the label above."""
+    near = {"vehicle_id": 1, "box": [200.0, 150.0, 440.0, 330.0], "label": threat_label("left", False),
+            "confidence": 0.8, "distance_m": 8.0, "cue": "threat", "side": "left"}
+    far = {"vehicle_id": 2, "box": [300.0, 110.0, 340.0, 135.0], "label": "aggressive driver", "distance_m": 70.0,
+           "cue": "type"}
+    alone = label_layout([near], 640, 360)[0]
+    assert alone.label is not None and alone.label[1] + alone.label[3] <= 150  # above its box, as ever
+    first = label_layout([near, far], 640, 360)[0]
+    x, y, w, h = first.label
+    assert first.mark == 0 and 150 < y and y + h < 330  # inside its own box
+    assert x + w <= 300 or 340 <= x or y + h <= 110 or 135 <= y  # off the far car's box
+    flat = {**near, "box": [200.0, 150.0, 440.0, 175.0]}  # too low to hold the label: above, as before
+    (kept, _) = label_layout([flat, far], 640, 360)
+    assert kept.label is not None and kept.label[1] + kept.label[3] <= 150
+
+
 def test_a_threat_mark_is_drawn_amber_with_its_side():
     rgb = np.full((360, 640, 3), 90, np.uint8)
     threat = {"vehicle_id": 1, "box": [300, 200, 380, 260], "label": threat_label("left", False), "confidence": 0.8,
