@@ -512,9 +512,11 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
     Labels are placed in priority order (threats first, then nearest first). A label sits just
     above its box; when there is no room above (the image's top edge, or a ``keep_out`` area such
     as the driving window's mirror or trial label), at the top inside the box when the box is tall
-    enough (a car close by), else just below the box. A label above its box that would cover another
-    mark's box (a farther car, higher in the picture) goes inside its own box too when that can hold it:
-    a label on another car's box reads as that car's. The ``full_labels`` first ones within
+    enough (a car close by), else just below the box. A label over another marked car's box, or right
+    above it, reads as that car's: a label is centred on its box unless another mark's box lies in its
+    column (between the label and its box's bottom), then aligned with its box's left or right edge,
+    whichever clears the others (:func:`_label_x`); if neither does and the label above would cover
+    another mark's box, it goes inside its own box when that can hold it. The ``full_labels`` first ones within
     ``label_range_m`` get the full label ("AGGRESSIVE DRIVER" or ">> CUTTING IN", confidence,
     distance), the others a small "!" tag. A label above or below its box that would overlap one
     already placed is moved up once, just above the one in the way, and joined to its box by a leader
@@ -552,12 +554,32 @@ def label_layout(items: Sequence[Mapping[str, Any]], width: int, height: int, fu
         else:
             head, sub = "!", ""
         bw, bh, pad, _, _, _ = _text_size(head, sub, scale)
-        bx = int(np.clip((p1[0] + p2[0]) / 2 - bw / 2, 0, max(width - bw, 0)))
+        bx = _label_x((p1[0], p1[1], p2[0], p2[1]), bw, bh + thick, width, others)
         rect, moved = _place_label(bx, bw, bh, (p1[1], p2[1]), (thick, pad), height, placed, keep_out, others)
         if rect is not None:
             placed.append(rect)
         out.append(Banner(i, (p1[0], p1[1], p2[0], p2[1]), rect, head, sub, moved))
     return out
+
+
+def _label_x(box: tuple[int, int, int, int], bw: int, reach: int, width: int, others: Sequence[Rect]) -> int:
+    """A label's left edge [px]: centred on its box, unless another mark's box lies in the label's column between
+    the label (above the box) and the box's bottom, where a reader would take the label for that car's; then
+    aligned with its box's left or right edge, whichever clears the others (else centred).
+
+    :param box: the label's own box ``(x1, y1, x2, y2)`` [px]
+    :param bw: the label's width [px]
+    :param reach: how far above the box the label reaches [px]
+    :param width: image width [px]
+    :param others: the other marks' boxes ``(x, y, w, h)`` [px]
+    :return: the left edge
+    """
+    x1, y1, x2, y2 = box
+    centred = int(np.clip((x1 + x2) / 2 - bw / 2, 0, max(width - bw, 0)))
+    for bx in (centred, int(np.clip(x1, 0, max(width - bw, 0))), int(np.clip(x2 - bw, 0, max(width - bw, 0)))):
+        if not _overlaps((bx, y1 - reach, bw, y2 - y1 + reach), others):
+            return bx
+    return centred
 
 
 def _clipped_box(box: Sequence[float], width: int, floor: int) -> tuple[int, int, int, int] | None:

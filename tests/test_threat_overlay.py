@@ -202,21 +202,33 @@ def test_labels_keep_out_of_what_the_screen_draws_over_the_picture():
     assert dropped.label is None and dropped.box == (250, 72, 290, 100)
 
 
-def test_a_label_does_not_sit_on_another_marks_box_when_its_own_box_can_hold_it():
-    """A near car's label above its box would cover a farther marked car's box, and read as that car's: it goes
-    inside its own (tall) box; a box too small to hold it keeps the label above."""
+def test_a_label_is_not_put_over_another_marked_car():
+    """A label over another marked car's box, or right above it, reads as that car's (found in the real window: a
+    cut-in label above two far cars). It slides to its box's left or right edge to clear the other car; when no
+    side clears, it goes inside its own box if that can hold it; a box too small keeps it above."""
     near = {"vehicle_id": 1, "box": [200.0, 150.0, 440.0, 330.0], "label": threat_label("left", False),
             "confidence": 0.8, "distance_m": 8.0, "cue": "threat", "side": "left"}
-    far = {"vehicle_id": 2, "box": [300.0, 110.0, 340.0, 135.0], "label": "aggressive driver", "distance_m": 70.0,
-           "cue": "type"}
+
+    def far(vid: int, x: float) -> dict:
+        return {"vehicle_id": vid, "box": [x, 110.0, x + 30.0, 135.0], "label": "aggressive driver",
+                "distance_m": 70.0, "cue": "type"}
+
+    def clear_of(label: tuple, boxes: list) -> bool:
+        x, _, w, _ = label
+        return all(x + w <= b["box"][0] or b["box"][2] <= x for b in boxes)
+
     alone = label_layout([near], 640, 360)[0]
-    assert alone.label is not None and alone.label[1] + alone.label[3] <= 150  # above its box, as ever
-    first = label_layout([near, far], 640, 360)[0]
-    x, y, w, h = first.label
-    assert first.mark == 0 and 150 < y and y + h < 330  # inside its own box
-    assert x + w <= 300 or 340 <= x or y + h <= 110 or 135 <= y  # off the far car's box
-    flat = {**near, "box": [200.0, 150.0, 440.0, 175.0]}  # too low to hold the label: above, as before
-    (kept, _) = label_layout([flat, far], 640, 360)
+    assert alone.label is not None and alone.label[1] + alone.label[3] <= 150  # above its box, centred
+    assert abs(alone.label[0] + alone.label[2] / 2 - 320) <= 1
+    middle = [far(2, 305.0)]  # under the centred label: the label slides to the box's left edge
+    slid = label_layout([near, *middle], 640, 360)[0]
+    assert slid.mark == 0 and slid.label[0] == 200 and slid.label[1] + slid.label[3] <= 150 and clear_of(slid.label, middle)
+    every = [far(2, 205.0), far(3, 305.0), far(4, 405.0)]  # no side clears: inside its own box
+    inside = label_layout([near, *every], 640, 360)[0]
+    x, y, w, h = inside.label
+    assert inside.mark == 0 and 150 < y and y + h < 330
+    flat = {**near, "box": [200.0, 150.0, 440.0, 175.0]}  # too low to hold the label: above, centred
+    kept = label_layout([flat, *every], 640, 360)[0]
     assert kept.label is not None and kept.label[1] + kept.label[3] <= 150
 
 
