@@ -117,6 +117,7 @@ def test_a_trial_that_did_not_keep_real_time_is_said():
     assert drive.realtime_ratio(1.45, 1.55) is None  # too short to judge: a step's lag would read as slow motion
     assert drive.realtime_ratio(9.0, 25.0, paused_s=16.0) is None
     assert drive.slow_trial_line(1.0) is None and drive.slow_trial_line(None) is None
+    assert drive.is_slow(0.947) and not drive.is_slow(0.95) and not drive.is_slow(None)
     line = drive.slow_trial_line(0.62)
     assert line is not None and "0.620 of real time" in line and "slow motion" in line
     edge = drive.slow_trial_line(0.947)  # below 0.95, and not rounded up to it

@@ -91,8 +91,8 @@ __all__ = [  # this module's own, and (re-exported) what the split of this modul
     "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "REALTIME_MIN_S", "REALTIME_WARN_BELOW", "SIZE_LIMITS_PX",
     "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep", "DriveOptions", "Hud", "SignalScope", "beep_samples", "card",
     "compose_frame", "crash_layer", "dialog", "drive_config", "held_at_start", "hud_band_height", "open_wheel",
-    "parse_size", "place_ego_after_crash", "realtime_ratio", "run_drive", "show_card", "slow_trial_line", "check_free",
-    "trial_dir", "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
+    "parse_size", "place_ego_after_crash", "is_slow", "realtime_ratio", "run_drive", "show_card", "slow_trial_line",
+    "check_free", "trial_dir", "trial_name", "trial_settings", "wall_time", "wheel_calibration_path", "wheel_text",
 ]
 
 TRIAL_SIMULATION_HZ = 30
@@ -781,7 +781,7 @@ def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, inf
     if trial.error is not None:
         raise trial.error
     _hold_crash_banner(win, trial, last, opts.fps)
-    paused_s = _paused_s(trial)
+    paused_s = round(sum(p["duration_s"] for p in trial.pauses), 3)
     log.meta.update(end_reason=trial.end_reason, collision=_collision_meta(trial, opts),
                     cut_short=trial.status == "ended_by_collision" and trial.t_sim < trial.duration - 1e-6,
                     pauses=trial.pauses, paused_s=paused_s,
@@ -789,11 +789,6 @@ def _drive(win: _Window, env: gym.Env, log: TrialWriter, opts: DriveOptions, inf
     if trial.status != "completed":
         log.close(trial.status, trial.end_reason)
     return trial, frame_ms, loop_wall_s
-
-
-def _paused_s(trial: _Trial) -> float:
-    """The trial's time spent paused, to the millisecond [s]."""
-    return round(sum(p["duration_s"] for p in trial.pauses), 3)
 
 
 def realtime_ratio(sim_s: float, wall_s: float, paused_s: float = 0.0) -> float | None:
@@ -812,13 +807,22 @@ def realtime_ratio(sim_s: float, wall_s: float, paused_s: float = 0.0) -> float 
     return round(sim_s / active, 3)
 
 
+def is_slow(ratio: float | None) -> bool:
+    """Whether a trial ran in slow motion: its :func:`realtime_ratio` below :data:`REALTIME_WARN_BELOW`.
+
+    :param ratio: :func:`realtime_ratio` (``None``: too short to judge)
+    :return: ``True`` when it was judged and is below the limit
+    """
+    return ratio is not None and ratio < REALTIME_WARN_BELOW
+
+
 def slow_trial_line(ratio: float | None) -> str | None:
     """The experimenter's warning about a trial that did not keep real time.
 
     :param ratio: :func:`realtime_ratio`
-    :return: the line, ``None`` when the trial kept real time (``ratio >= REALTIME_WARN_BELOW``) or was too short
+    :return: the line, ``None`` when the trial kept real time or was too short (:func:`is_slow`)
     """
-    if ratio is None or ratio >= REALTIME_WARN_BELOW:
+    if ratio is None or not is_slow(ratio):
         return None
     return (f"  warning: the simulation kept {ratio:.3f} of real time: the participant drove in slow motion (the "
             "machine was too slow; see 'Frame times' in the keyboard guide)")
@@ -971,7 +975,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                                                       None if wheel is None else wheel[0])
             say(_status_line(opts, directory, trial.status, trial.end_reason, trial.t_sim, trial.duration,
                              len(trial.crashes), len(trial.pauses)))
-            ratio = realtime_ratio(trial.t_sim, loop_wall_s, _paused_s(trial))  # as in meta.json
+            ratio = log.meta["realtime_ratio"]
             slow = slow_trial_line(ratio)
             if slow is not None:
                 say(slow)

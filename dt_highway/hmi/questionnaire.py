@@ -50,6 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from dt_highway.config import ConfigError, read_user_file
 from dt_highway.hmi.briefing import TextFont
+from dt_highway.hmi.window import open_display
 from dt_highway.jsonio import dump_json, finite_number
 from dt_highway.metrics.questionnaires import RESULTS_FILE, read_results
 
@@ -750,7 +751,7 @@ def run_questionnaires(window_size: tuple[int, int], names: list[str], trial_dir
     repeat = pygame.key.get_repeat()
     try:
         if owns_window:
-            pygame.display.set_mode(window_size, pygame.RESIZABLE)
+            open_display(window_size)
             pygame.display.set_caption("Questionnaire")
         pygame.key.set_repeat(400, 60)  # Left/Right held move the mark along a long scale [ms]
         # keys and clicks from before (a key still going at the trial's end) must not answer an item

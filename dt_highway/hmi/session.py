@@ -58,10 +58,10 @@ from dt_highway.conditions import check_condition, check_mode_override, shows_ov
 from dt_highway.config import ConfigError, load_config
 from dt_highway.hmi.briefing import ENTER, Protocol, Screen, ScreenWindow, format_duration, load_protocol, render_screen
 from dt_highway.hmi.drive import (
-    REALTIME_WARN_BELOW,
     DriveOptions,
     SignalScope,
     drive_config,
+    is_slow,
     run_drive,
     trial_dir,
     trial_name,
@@ -297,7 +297,7 @@ def status_line(participant: str, trial: SessionTrial, attempt: int, result: dic
     driven = f"{sim:.1f} s" if isinstance(sim, (int, float)) else "- s"
     pauses = len(result.get("pauses") or [])
     ratio = result.get("realtime_ratio")
-    slow = isinstance(ratio, (int, float)) and ratio < REALTIME_WARN_BELOW
+    slow = isinstance(ratio, (int, float)) and is_slow(ratio)
     return (f"{time.strftime('%H:%M:%S')} {participant} | {trial.label} | {trial.condition} | attempt {attempt + 1} | "
             f"{driven} | {crashes} crash{'' if crashes == 1 else 'es'}"
             + (f" | {pauses} pause{'' if pauses == 1 else 's'}" if pauses else "")
