@@ -169,6 +169,28 @@ def is_completed(directory: str | Path) -> bool:
         return False
 
 
+def _done_result(spec: TrialSpec) -> dict[str, Any] | None:
+    """The result of a trial completed by an earlier run (resume): ``skipped``, with its metrics from its log.
+
+    :param spec: the trial
+    :return: ``None`` when the trial must run (no log, an unreadable one, or one that did not complete);
+        ``failed`` when its Parquet copy was asked for and cannot be written
+    """
+    out = Path(spec.directory)
+    if not is_completed(out):  # its meta.json alone: a log that did not complete is not read
+        return None
+    try:
+        done = load_trial(out)
+    except (OSError, ValueError):  # an unreadable log: run the trial again
+        return None
+    if spec.parquet and not (out / "steps.parquet").exists():
+        try:
+            write_parquet(out, done)
+        except (ImportError, ValueError) as err:
+            return {"status": "failed", "directory": str(out), "error": str(err)}
+    return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
+
+
 def run_trial(spec: TrialSpec) -> dict[str, Any]:
     """Run one trial and write its log.
 
@@ -177,19 +199,9 @@ def run_trial(spec: TrialSpec) -> dict[str, Any]:
         error (when failed) and the trial's metrics (when it has a log)
     """
     out = Path(spec.directory)
-    done = None
-    if (out / "meta.json").exists():
-        try:
-            done = load_trial(out)
-        except (OSError, ValueError):  # an unreadable log: run the trial again
-            done = None
-    if done is not None and done.meta.get("status") == "completed":
-        if spec.parquet and not (out / "steps.parquet").exists():
-            try:
-                write_parquet(out, done)
-            except (ImportError, ValueError) as err:
-                return {"status": "failed", "directory": str(out), "error": str(err)}
-        return {"status": "skipped", "directory": str(out), "metrics": done.metrics()}
+    done = _done_result(spec)
+    if done is not None:
+        return done
     try:
         driver = load_driver(spec.driver)
         cfg = driver_config(spec.scenario, spec.overrides, spec.condition, driver.config_overrides())
@@ -321,14 +333,22 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
         if progress is not None:
             progress(r)
 
+    todo = []
+    for s in specs:  # trials done by an earlier run are read here: no worker (nor Ray) is started for them
+        done = _done_result(s)
+        if done is None:
+            todo.append(s)
+        else:
+            record(done)
+    if not todo:
+        return result
     if backend == "ray":
-        _run_ray(specs, ray_address, workers, record)
-        return result
-    if workers <= 1:
-        for s in specs:
+        _run_ray(todo, ray_address, workers, record)
+    elif workers <= 1:
+        for s in todo:
             record(run_trial(s))
-        return result
-    _run_pool(specs, workers, record)
+    else:
+        _run_pool(todo, workers, record)
     return result
 
 

@@ -29,7 +29,7 @@ def test_driver_files_load_and_bad_ones_are_refused(tmp_path):
         load_driver(tmp_path / "nope.toml")
 
 
-def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_path):
+def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_path, monkeypatch):
     out = tmp_path / "study"
     specs = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 7, "envs/highway-trial.toml", SHORT)
     bad = plan(out, str(tmp_path / "missing.toml"), ["baseline"], 1, 7)[0]
@@ -43,6 +43,21 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         assert abs(trial.steps["t_s"].max() - 4.0) < 0.1 and len(trial.steps) == 60  # t = 1/15..4 s
     again = run_study(specs, out, workers=1)
     assert len(again.skipped) == 2 and not again.completed
+    import dt_highway.study as study_module
+
+    def no_worker(*args, **kwargs):
+        raise AssertionError("a worker (or Ray) was started for trials already done")
+
+    monkeypatch.setattr(study_module, "_run_pool", no_worker)
+    monkeypatch.setattr(study_module, "_run_ray", no_worker)
+    import importlib.util
+
+    backends = ["process", *(["ray"] if importlib.util.find_spec("ray") else [])]
+    for backend in backends:  # a finished study resumes at once: its trials are read here
+        seen = []
+        done = run_study(specs, out, workers=2, backend=backend, progress=seen.append)
+        assert sorted(done.skipped) == sorted(s.directory for s in specs) and not done.completed
+        assert [r["status"] for r in seen] == ["skipped", "skipped"] and all(r["metrics"] for r in seen)
     other = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 8, "envs/highway-trial.toml", SHORT)
     with pytest.raises(ConfigError, match=r"started with other settings for baseline-000 \(seed 7, now 8\): use another"):
         run_study(other, out, workers=1)  # another seed into the same trial directories
