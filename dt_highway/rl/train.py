@@ -27,7 +27,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any
 
 import cv2
 import gymnasium as gym
@@ -54,9 +54,6 @@ from dt_highway.rl.curves import write_curve
 from dt_highway.rl.files import FORMAT, sha256, sidecar_path, versions
 from dt_highway.rl.preroll import PrerollAhead, Reseed, ahead_ok
 from dt_highway.rl.rewards import RewardTermsLogger, SafetyReward
-
-if TYPE_CHECKING:
-    from dt_highway.env import DTHighwayEnv
 
 ENV_ID = "dt_highway:dt-highway-v0"
 VISION_DQN_BUFFER = 20_000
@@ -227,14 +224,14 @@ class HeldOutEval(BaseCallback):
             total, n = 0.0, 0
             while True:
                 action, _ = self.model.predict(obs, deterministic=True)
-                obs, reward, terminated, truncated, _ = self.env.step(action)
+                obs, reward, terminated, truncated, info = self.env.step(action)
                 total += float(reward)
                 n += 1
                 if terminated or truncated:
                     break
             returns.append(total)
             lengths.append(n)
-            crashes += int(cast("DTHighwayEnv", self.env.unwrapped).vehicle.crashed)
+            crashes += int(bool(info["crashed"]))  # the env's step info (the ego's own crash), not its internals
         summary = {"timesteps": int(self.num_timesteps), "mean_return": float(np.mean(returns)),
                    "mean_length": float(np.mean(lengths)), "collision_rate": crashes / self.episodes}
         self.results.append(summary)
