@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 import types
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
@@ -19,7 +20,7 @@ import pytest
 
 from dt_highway.cli import main
 from dt_highway.config import ConfigError
-from dt_highway.hmi import crash, drive, picture, screens
+from dt_highway.hmi import briefing, crash, drive, picture, screens
 from dt_highway.hmi.drive import (
     CRASH_BANNER_S,
     MIRROR_FRACTION,
@@ -50,7 +51,8 @@ def _opts(tmp_path, participant="P01", condition="adas", **kw):
 
 
 def _spy_text(monkeypatch):
-    """Every text drawn on the participant's pictures and screens (all go through ``screens._text``)."""
+    """Every text drawn on the participant's pictures (``screens._text``) and full screens (the session's
+    renderer, ``briefing.TextFont.render``: one entry per line drawn)."""
     texts = []
     real = screens._text
 
@@ -60,6 +62,13 @@ def _spy_text(monkeypatch):
 
     for module in (screens, picture, crash):  # each draws with the helper it imported
         monkeypatch.setattr(module, "_text", spy)
+    real_render = briefing.TextFont.render
+
+    def render(font, text, *a, **k):
+        texts.append(text)
+        return real_render(font, text, *a, **k)
+
+    monkeypatch.setattr(briefing.TextFont, "render", render)
     return texts
 
 
@@ -185,6 +194,34 @@ def test_the_env_is_made_under_preparing_and_keys_pressed_meanwhile_do_not_start
     assert not Path(result["directory"]).exists() and lines[0].endswith("nothing saved") and "->" not in lines[0]
 
 
+def test_the_keys_screen_shows_the_sessions_legend_drawn_as_its_screens(tmp_path, monkeypatch):
+    """A session's protocol translates the keys' legend: the trial's keys screen showed the built-in English one,
+    in another font (OpenCV's Hershey, which cannot draw an umlaut)."""
+    from dt_highway.hmi.briefing import Protocol, Screen, load_protocol, render_screen
+    from dt_highway.hmi.session import session_plan
+
+    legend = [("Pfeil hoch", "Gas geben (halten)"), ("Pfeil runter", "bremsen (halten)"), ("Esc", "Fahrt beenden (Rückfrage)")]
+    protocol = Protocol.model_validate({**load_protocol().model_dump(), "legend": legend})
+    trials = session_plan(DriveOptions("P01", "adas", tmp_path / "s"), conditions=["baseline", "sham"], protocol=protocol)
+    assert all(t.opts.legend == tuple(legend) for t in trials)
+    texts = _spy_text(monkeypatch)
+    shown = []
+
+    def on_frame(img):
+        shown.append(img)
+        if len(shown) == 2:  # the keys screen: Esc, so the trial never starts
+            pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_ESCAPE))
+
+    opts = replace(trials[-1].opts, scenario=V1, overrides=list(QUIET), duration_s=1.5, minimap=False)
+    result = run_drive(opts, on_frame=on_frame, say=lambda s: None)
+    assert result["status"] == "not started"
+    assert {"Pfeil hoch", "Gas geben (halten)", "Fahrt beenden (Rückfrage)", "Press Enter to start"} <= set(texts)
+    assert "throttle (hold)" not in texts
+    title = f"{trials[-1].label}: the keys"
+    expected = render_screen(shown[1].shape[1::-1], Screen(title=title, keys=True), legend, "Press Enter to start")
+    np.testing.assert_array_equal(shown[1], expected)  # the session's renderer: its font, colours and layout
+
+
 def test_a_modifier_key_does_not_answer_the_quit_question(tmp_path, monkeypatch):
     # Shift, Ctrl, Alt (sent again when the window gets the focus back with Alt+Tab) leave the question up;
     # Enter, 1 s later, answers it
@@ -271,11 +308,11 @@ def test_a_practice_trial_ends_on_practice_saved_not_trial_saved(tmp_path, monke
     titles = []
     orig_card = screens.card
 
-    def card(size, title, lines):
+    def card(size, title, lines, **kw):
         titles.append(title)
         if title.endswith("saved"):
             pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.K_RETURN))
-        return orig_card(size, title, lines)
+        return orig_card(size, title, lines, **kw)
 
     monkeypatch.setattr(screens, "card", card)
     shown = []
@@ -295,13 +332,13 @@ def test_interactive_keys_held_through_the_countdown_sub_step_times_and_enter_on
     end_shown = []
     orig_card = screens.card
 
-    def card(size, title, lines):  # on the end screen: a stray arrow and a letter first, Enter only 0.6 s later
+    def card(size, title, lines, **kw):  # on the end screen: a stray arrow and a letter first, Enter only 0.6 s later
         if title == "Trial saved":
             end_shown.append(time.monotonic())
             pygame.event.post(pygame.event.Event(down, key=pygame.K_UP))
             pygame.event.post(pygame.event.Event(down, key=pygame.K_a))
             threading.Timer(0.6, lambda: pygame.event.post(pygame.event.Event(down, key=pygame.K_RETURN))).start()
-        return orig_card(size, title, lines)
+        return orig_card(size, title, lines, **kw)
 
     monkeypatch.setattr(screens, "card", card)  # the end screen's (hmi.screens)
     plan = {2: [(down, pygame.K_RETURN)],  # the keys screen

@@ -193,6 +193,8 @@ class DriveOptions:
         missing, the calibration screen runs first and saves it there
     :param force: replace a trial already in the trial's folder, the whole folder, once the new trial starts
         (else :func:`run_drive` refuses, before the window opens)
+    :param legend: the keys' legend on the screen before the trial: ``(key, what it does)`` pairs (a session
+        passes its protocol's)
     """
 
     participant: str
@@ -219,6 +221,7 @@ class DriveOptions:
     wheel: int | None = None
     wheel_calibration: Path | None = None
     force: bool = False
+    legend: tuple[tuple[str, str], ...] = LEGEND
 
     @property
     def label(self) -> str:
@@ -960,7 +963,7 @@ def run_drive(opts: DriveOptions, on_frame: Callable[[np.ndarray], None] | None 
                 # keys "held through the countdown"; a signal while the env was prepared: not started
                 pre_start = None if win.stopped else opts.keys_from.due(-1e-6)
             else:
-                pre_start = _start_screens(win, opts.label)
+                pre_start = _start_screens(win, opts.label, opts.legend)
             if pre_start is None:
                 reason = signals.received or ("window closed" if win.closed else
                                               "wheel set-up cancelled" if device is not None and wheel is None

@@ -1,18 +1,22 @@
 """The text screens of a keyboard trial: the keys' legend before it, the 3-2-1 countdown, the
 pause and quit question (:func:`dialog`, drawn over the driving picture), the "Trial saved"
-("Practice saved") screen after it, and plain screens between trials (:func:`card`, :func:`show_card`). Drawn with
-OpenCV's Hershey font (no pygame font needed); never a condition's name or a file path.
+("Practice saved") screen after it, and plain screens between trials (:func:`card`, :func:`show_card`). A
+full screen (:func:`card`) is drawn as a session's screens are (:func:`~dt_highway.hmi.briefing.render_screen`:
+the same font, colours and layout, any text pygame's font can show), so that a session's screens and its
+trials' look alike; what is drawn over the driving picture uses OpenCV's Hershey font. Never a
+condition's name or a file path.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import cv2
 import numpy as np
 import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
 
+from dt_highway.hmi.briefing import Screen, render_screen
 from dt_highway.hmi.keys import KeyEvent
 from dt_highway.hmi.window import DRIVING_KEYS, PYGAME_KEYS, _key_names, _Signals, _Window
 
@@ -85,40 +89,39 @@ def dialog(img: np.ndarray, lines: Iterable[str], colour: tuple[int, int, int] =
     return rects
 
 
-def card(size: tuple[int, int], title: str, lines: list[str]) -> np.ndarray:
-    """A plain screen with a title and lines of text (start, break and end screens).
+def card(size: tuple[int, int], title: str, lines: list[str], *, legend: Sequence[tuple[str, str]] = (),
+         hint: str = "") -> np.ndarray:
+    """A plain screen with a title and paragraphs of text (start, break and end screens), drawn as a
+    session's screens are (:func:`~dt_highway.hmi.briefing.render_screen`).
 
     :param size: ``(width, height)`` [px]
     :param title: the title
-    :param lines: the text; a tab splits a line into two columns (the keys' legend)
+    :param lines: the text, one paragraph each (a long one is wrapped)
+    :param legend: the keys' legend below the text: ``(key, what it does)`` pairs
+    :param hint: the bottom line (``Press Enter to start``)
     :return: the picture, ``(height, width, 3)`` RGB
     """
-    w, h = size
-    out = np.full((h, w, 3), 28, np.uint8)
-    s = _scale(h)
-    _text(out, title, (int(40 * s), int(90 * s)), 1.6 * s, _AMBER, thick=max(1, round(3 * s)), shadow=False)
-    for i, line in enumerate(lines):
-        y = int((160 + 48 * i) * s)
-        for col, part in enumerate(line.split("\t", 1)):
-            _text(out, part, (int((40 + 320 * col) * s), y), 0.95 * s, thick=max(1, round(2 * s)), shadow=False)
-    return out
+    # model_construct: a trial's own text (its label, fixed words), not a protocol's, which the model checks
+    screen = Screen.model_construct(title=title, text="\n\n".join(lines), keys=bool(legend), marks_example=False)
+    return render_screen(size, screen, legend, hint)
 
 
 def show_card(size: tuple[int, int], title: str, lines: list[str], timeout_s: float | None = None,
-              fullscreen: bool = False) -> bool:
+              fullscreen: bool = False, hint: str = "Press Enter to go on") -> bool:
     """Show a screen (e.g. a break between trials) until Enter is pressed.
 
     :param size: window size ``(width, height)`` [px]
     :param title: the title
-    :param lines: the text; a tab splits a line into two columns (the keys' legend)
+    :param lines: the text, one paragraph each
     :param timeout_s: give up waiting after this long (``None``: wait for Enter)
     :param fullscreen: fill the screen
+    :param hint: the bottom line
     :return: ``False`` when the participant pressed Esc, closed the window or a signal came
     """
     with _Signals() as signals:
         try:
             win = _Window(size, fullscreen, signals=signals)
-            key = win.wait_key(card(size, title, lines), (*_ENTER, pygame.K_ESCAPE), timeout_s)
+            key = win.wait_key(card(size, title, lines, hint=hint), (*_ENTER, pygame.K_ESCAPE), timeout_s)
             return key != pygame.K_ESCAPE and not win.stopped
         finally:
             pygame.quit()
@@ -149,15 +152,18 @@ def _countdown(win: _Window) -> list[KeyEvent] | None:
     return events
 
 
-def _start_screens(win: _Window, label: str) -> list[KeyEvent] | None:
+def _start_screens(win: _Window, label: str, legend: Sequence[tuple[str, str]] = LEGEND) -> list[KeyEvent] | None:
     """The keys, until Enter, then a count-down.
 
+    :param win: the trial's window
+    :param label: the trial's neutral name (``Trial 2 of 4``)
+    :param legend: the keys' legend (a session's: its protocol's)
     :return: the key events of the countdown (:func:`_countdown`); ``None`` when the participant
         pressed Esc, closed the window or a signal came instead
     """
-    legend = [f"{k}\t{v}" for k, v in LEGEND]
     pygame.event.clear((pygame.KEYDOWN, pygame.KEYUP))  # pressed while the trial was prepared: not an answer
-    key = win.wait_key(card(win.size, f"{label}: the keys", [*legend, "", "Press Enter to start"]), (*_ENTER, pygame.K_ESCAPE))
+    screen = card(win.size, f"{label}: the keys", [], legend=legend, hint="Press Enter to start")
+    key = win.wait_key(screen, (*_ENTER, pygame.K_ESCAPE))
     if key is None or key == pygame.K_ESCAPE:
         return None
     return _countdown(win)
@@ -174,6 +180,6 @@ def _end_screen(win: _Window, status: str, end_reason: str, practice: bool = Fal
     if win.stopped or end_reason == "window closed":
         return
     what = "practice" if practice else "trial"
-    early = [f"The {what} ended early: there was a collision.", ""] if status == "ended_by_collision" else []
-    win.wait_key(card(win.size, f"{what.capitalize()} saved", [*early, "Thank you.", "", "Press Enter to go on"]), _ENTER,
-                 END_SCREEN_S)
+    early = [f"The {what} ended early: there was a collision."] if status == "ended_by_collision" else []
+    win.wait_key(card(win.size, f"{what.capitalize()} saved", [*early, "Thank you."], hint="Press Enter to go on"),
+                 _ENTER, END_SCREEN_S)

@@ -248,7 +248,8 @@ def session_plan(base: DriveOptions, practice_duration_s: float | None = None,
                 number=i + 1, total=k, label="", duration="")
             opts = (replace(base, condition=cond, practice=True, seed=base.seed + PRACTICE_SEED_OFFSET + i,
                             duration_s=practice_s) if practice else replace(base, condition=cond, practice=False))
-            trials.append(SessionTrial(replace(opts, display_label=label), trial_name(base.participant, cond, practice),
+            opts = replace(opts, display_label=label, legend=tuple((key, what) for key, what in protocol.legend))
+            trials.append(SessionTrial(opts, trial_name(base.participant, cond, practice),
                                        label, i + 1, k))
     if base.screenshots is not None:  # one folder per trial, or their screenshots would overwrite each other
         trials = [replace(t, opts=replace(t.opts, screenshots=base.screenshots / t.name)) for t in trials]
