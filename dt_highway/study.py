@@ -335,7 +335,10 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
 
     todo = []
     for s in specs:  # trials done by an earlier run are read here: no worker (nor Ray) is started for them
-        done = _done_result(s)
+        try:
+            done = _done_result(s)
+        except Exception as err:  # noqa: BLE001 - a damaged log (e.g. of an older version): reported, as a worker would
+            done = {"status": "failed", "directory": s.directory, "error": f"{type(err).__name__}: {err}"}
         if done is None:
             todo.append(s)
         else:

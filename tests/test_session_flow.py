@@ -89,6 +89,17 @@ def test_a_bad_protocol_file_is_one_line_naming_the_key(tmp_path, old, new, mess
     assert "\n" not in str(err.value)
 
 
+def test_a_protocol_without_keys_is_refused(tmp_path):
+    """Every trial's keys screen and the briefing's show the protocol's legend: an empty one left them blank."""
+    text = DEFAULT_PROTOCOL.read_text(encoding="utf-8")
+    start = text.index("legend = [")
+    end = text.index("]\n", text.index('["Esc"', start)) + 2
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text[:start] + "legend = []\n" + text[end:], encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"legend = \[\]: List should have at least 1 item"):
+        load_protocol(bad)
+
+
 def test_the_cli_refuses_a_bad_protocol_before_any_window(tmp_path, capsys):
     bad = tmp_path / "p.toml"
     bad.write_text('name = "x"\n', encoding="utf-8")

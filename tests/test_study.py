@@ -2,6 +2,7 @@
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -58,6 +59,12 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         done = run_study(specs, out, workers=2, backend=backend, progress=seen.append)
         assert sorted(done.skipped) == sorted(s.directory for s in specs) and not done.completed
         assert [r["status"] for r in seen] == ["skipped", "skipped"] and all(r["metrics"] for r in seen)
+    # a completed log that cannot be scored (a column missing: an older version's) fails that trial, not the study
+    steps = Path(specs[0].directory) / "steps.csv"
+    steps.write_text("\n".join(",".join(line.split(",")[:2]) for line in steps.read_text().splitlines()) + "\n")
+    broken = run_study(specs, out, workers=2)
+    assert [f["directory"] for f in broken.failed] == [specs[0].directory] and "KeyError" in broken.failed[0]["error"]
+    assert broken.skipped == [specs[1].directory]
     other = plan(out, "agents/human.toml", ["baseline", "adas"], 1, 8, "envs/highway-trial.toml", SHORT)
     with pytest.raises(ConfigError, match=r"started with other settings for baseline-000 \(seed 7, now 8\): use another"):
         run_study(other, out, workers=1)  # another seed into the same trial directories

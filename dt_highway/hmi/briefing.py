@@ -162,7 +162,7 @@ class Protocol(BaseModel):
     legend: list[tuple[str, str]] = Field(
         default_factory=lambda: [("Up", "throttle (hold)"), ("Down", "brake (hold)"), ("Left / Right", "change lane"),
                                  ("M", "mini-map on / off"), ("P", "pause"), ("Esc", "stop the trial (asks first)")],
-        description="the keys legend: [key, what it does] pairs")
+        min_length=1, description="the keys legend: [key, what it does] pairs (at least one)")
     briefing: list[Screen] = Field(default_factory=list, description="the screens before the first trial")
     overlay: Screen = Field(..., description="the overlay's explanation (one text for every overlay condition)")
     practice: Screen = Field(..., description="before each practice trial")
