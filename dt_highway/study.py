@@ -334,15 +334,16 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
             progress(r)
 
     todo = []
-    for s in specs:  # trials done by an earlier run are read here: no worker (nor Ray) is started for them
-        try:
-            done = _done_result(s)
-        except Exception as err:  # noqa: BLE001 - a damaged log (e.g. of an older version): reported, as a worker would
-            done = {"status": "failed", "directory": s.directory, "error": f"{type(err).__name__}: {err}"}
-        if done is None:
-            todo.append(s)
-        else:
-            record(done)
+    with _sigterm_as_ctrl_c(None):  # a job scheduler's stop meanwhile: the study stops as on Ctrl-C
+        for s in specs:  # trials done by an earlier run are read here: no worker (nor Ray) is started for them
+            try:
+                done = _done_result(s)
+            except Exception as err:  # noqa: BLE001 - a damaged log (an older version's): reported, as a worker would
+                done = {"status": "failed", "directory": s.directory, "error": f"{type(err).__name__}: {err}"}
+            if done is None:
+                todo.append(s)
+            else:
+                record(done)
     if not todo:
         return result
     if backend == "ray":
@@ -461,9 +462,9 @@ def _run_pool(specs: Sequence[TrialSpec], workers: int, record: Callable[[dict[s
 
 
 @contextmanager
-def _sigterm_as_ctrl_c(pool: ProcessPoolExecutor) -> Iterator[None]:
-    """While the pool runs (main thread only): SIGTERM sends SIGINT to the pool's workers, then raises
-    :class:`KeyboardInterrupt` here; the previous handler comes back afterwards."""
+def _sigterm_as_ctrl_c(pool: ProcessPoolExecutor | None) -> Iterator[None]:
+    """While the pool runs (main thread only): SIGTERM sends SIGINT to the pool's workers (``None``: no pool yet),
+    then raises :class:`KeyboardInterrupt` here; the previous handler comes back afterwards."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -59,6 +59,31 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         done = run_study(specs, out, workers=2, backend=backend, progress=seen.append)
         assert sorted(done.skipped) == sorted(s.directory for s in specs) and not done.completed
         assert [r["status"] for r in seen] == ["skipped", "skipped"] and all(r["metrics"] for r in seen)
+    # SIGTERM (a job scheduler's stop) while the done trials are read: the study stops as on Ctrl-C (the command
+    # then prints how to resume and exits 130), and SIGTERM's handler comes back
+    import os
+    import signal
+
+    real_done = study_module._done_result
+
+    def term_first(spec):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return real_done(spec)
+
+    monkeypatch.setattr(study_module, "_done_result", term_first)
+    outside: list[int] = []  # a SIGTERM the study did not take lands here, not in the end of the test run
+
+    def handler(signum, frame):
+        outside.append(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(specs, out, workers=2)
+        assert signal.getsignal(signal.SIGTERM) is handler and outside == []
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    monkeypatch.setattr(study_module, "_done_result", real_done)
     # a completed log that cannot be scored (a column missing: an older version's) fails that trial, not the study
     steps = Path(specs[0].directory) / "steps.csv"
     steps.write_text("\n".join(",".join(line.split(",")[:2]) for line in steps.read_text().splitlines()) + "\n")
