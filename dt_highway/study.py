@@ -344,15 +344,14 @@ def run_study(specs: Sequence[TrialSpec], out: str | Path, workers: int = 2,
                 todo.append(s)
             else:
                 record(done)
-    if not todo:
-        return result
-    if backend == "ray":
+        if todo and backend != "ray":  # Ray takes the signals its own way (_run_ray)
+            if workers <= 1:  # in this process: SIGTERM closes the running trial's log as Ctrl-C does
+                for s in todo:
+                    record(run_trial(s))
+            else:
+                _run_pool(todo, workers, record)  # its own handler, inside this one, also stops the workers
+    if todo and backend == "ray":
         _run_ray(todo, ray_address, workers, record)
-    elif workers <= 1:
-        for s in todo:
-            record(run_trial(s))
-    else:
-        _run_pool(todo, workers, record)
     return result
 
 

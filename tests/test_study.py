@@ -95,6 +95,49 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         run_study(other, out, workers=1)  # another seed into the same trial directories
 
 
+def test_sigterm_stops_a_one_worker_study_as_ctrl_c_does(tmp_path, monkeypatch):
+    """``--workers 1`` runs the trials in the study's process: a SIGTERM (``kill PID``, a job scheduler) killed it
+    with the running trial's log left open; now the trial is closed as aborted, "interrupted by the user" (run again
+    on resume), and the study raises KeyboardInterrupt (the command prints how to resume and exits 130)."""
+    import os
+    import signal
+
+    import dt_highway.study as study_module
+
+    real_load = study_module.load_driver
+
+    def load_driver(path):
+        driver = real_load(path)
+        real_act, calls = driver.act, []
+
+        def act(perceived):
+            calls.append(1)
+            if len(calls) == 10:  # mid-trial
+                os.kill(os.getpid(), signal.SIGTERM)
+            return real_act(perceived)
+
+        driver.act = act
+        return driver
+
+    monkeypatch.setattr(study_module, "load_driver", load_driver)
+    specs = plan(tmp_path / "study", "agents/idm.toml", ["baseline"], 2, 7, "envs/highway-trial.toml", SHORT)
+    outside: list[int] = []  # a SIGTERM the study did not take lands here, not in the end of the test run
+
+    def handler(signum, frame):
+        outside.append(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_study(specs, tmp_path / "study", workers=1)
+        assert signal.getsignal(signal.SIGTERM) is handler and outside == []
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    trial = load_trial(specs[0].directory)
+    assert (trial.meta["status"], trial.meta["end_reason"]) == ("aborted", "interrupted by the user")
+    assert not Path(specs[1].directory).exists()  # the next trial never started
+
+
 def test_study_and_report_commands(tmp_path, capsys):
     out = tmp_path / "s"
     args = ["study", "--driver", "agents/idm.toml", "--trials", "2", "--workers", "1", "--out", str(out), "--quiet",
