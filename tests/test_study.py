@@ -1,7 +1,9 @@
 """The study runner, trial logs of real trials, the drivers and the report, on tiny studies."""
 
 import json
+import os
 import re
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,24 @@ from dt_highway.metrics.trial_log import load_trial
 from dt_highway.study import freeze_inputs, plan, run_study
 
 SHORT = ["highway.duration=4", "highway.vehicles_count=12", "twin.preroll_s=5"]
+
+
+def _stops_as_on_ctrl_c(run_the_study) -> None:
+    """``run_the_study()`` (which sends itself a SIGTERM) raises KeyboardInterrupt, as on Ctrl-C, and leaves SIGTERM's
+    handler as it found it. A SIGTERM the study did not take lands in a recording handler, not in the end of the
+    test run."""
+    outside: list[int] = []
+
+    def handler(signum, frame):
+        outside.append(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_the_study()
+        assert signal.getsignal(signal.SIGTERM) is handler and outside == []
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_driver_files_load_and_bad_ones_are_refused(tmp_path):
@@ -61,8 +81,6 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         assert [r["status"] for r in seen] == ["skipped", "skipped"] and all(r["metrics"] for r in seen)
     # SIGTERM (a job scheduler's stop) while the done trials are read: the study stops as on Ctrl-C (the command
     # then prints how to resume and exits 130), and SIGTERM's handler comes back
-    import os
-    import signal
 
     real_done = study_module._done_result
 
@@ -71,18 +89,7 @@ def test_a_paired_study_logs_every_trial_resumes_and_survives_a_failed_one(tmp_p
         return real_done(spec)
 
     monkeypatch.setattr(study_module, "_done_result", term_first)
-    outside: list[int] = []  # a SIGTERM the study did not take lands here, not in the end of the test run
-
-    def handler(signum, frame):
-        outside.append(signum)
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(specs, out, workers=2)
-        assert signal.getsignal(signal.SIGTERM) is handler and outside == []
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    _stops_as_on_ctrl_c(lambda: run_study(specs, out, workers=2))
     monkeypatch.setattr(study_module, "_done_result", real_done)
     # a completed log that cannot be scored (a column missing: an older version's) fails that trial, not the study
     steps = Path(specs[0].directory) / "steps.csv"
@@ -99,8 +106,6 @@ def test_sigterm_stops_a_one_worker_study_as_ctrl_c_does(tmp_path, monkeypatch):
     """``--workers 1`` runs the trials in the study's process: a SIGTERM (``kill PID``, a job scheduler) killed it
     with the running trial's log left open; now the trial is closed as aborted, "interrupted by the user" (run again
     on resume), and the study raises KeyboardInterrupt (the command prints how to resume and exits 130)."""
-    import os
-    import signal
 
     import dt_highway.study as study_module
 
@@ -121,18 +126,7 @@ def test_sigterm_stops_a_one_worker_study_as_ctrl_c_does(tmp_path, monkeypatch):
 
     monkeypatch.setattr(study_module, "load_driver", load_driver)
     specs = plan(tmp_path / "study", "agents/idm.toml", ["baseline"], 2, 7, "envs/highway-trial.toml", SHORT)
-    outside: list[int] = []  # a SIGTERM the study did not take lands here, not in the end of the test run
-
-    def handler(signum, frame):
-        outside.append(signum)
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            run_study(specs, tmp_path / "study", workers=1)
-        assert signal.getsignal(signal.SIGTERM) is handler and outside == []
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    _stops_as_on_ctrl_c(lambda: run_study(specs, tmp_path / "study", workers=1))
     trial = load_trial(specs[0].directory)
     assert (trial.meta["status"], trial.meta["end_reason"]) == ("aborted", "interrupted by the user")
     assert not Path(specs[1].directory).exists()  # the next trial never started
