@@ -18,91 +18,43 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, NoReturn, TypedDict
+from typing import TYPE_CHECKING, Any, NoReturn, TypedDict
 
 import gymnasium as gym
 from tqdm import tqdm
 
 from dt_highway._version import __version__
-from dt_highway.bench import (
-    bench_camera,
-    bench_detector,
-    bench_drive,
-    bench_fusion,
-    bench_memory,
-    bench_sim,
-    bench_train,
-    deviation_steps,
-)
-from dt_highway.conditions import CONDITIONS, condition_config, driver_config
-from dt_highway.config import (
-    POPULATIONS,
-    ConfigError,
-    DTConfig,
-    deep_merge,
-    find_file,
-    load_config,
-    merge,
-    override_value,
-    parse_override,
-)
-from dt_highway.drivers import Driver, load_driver
-from dt_highway.env.seat import DriverSeat
-from dt_highway.evaluation.calibration import (
-    calibrate,
-    calibration_table,
-    check_table_kept,
-    check_values,
-    knob_value,
-    markdown,
-    split_values,
-)
-from dt_highway.evaluation.chase_train import SCORE_THRESHOLDS, TEST_SEED, TRAIN_SEED, train_chase
-from dt_highway.evaluation.frames import frame_files, record_frames
-from dt_highway.evaluation.intent import (
-    INTENT_EPISODES,
-    evaluate_intent,
-    format_intent,
-    format_sweep,
-    run_intent_sweep,
-    sweep_steps,
-)
-from dt_highway.evaluation.intent_oracle import HIDEABLE, PICTURE_HIDEABLE, PICTURE_REVEALABLE, STARTS, OracleSettings
-from dt_highway.evaluation.intent_train import train_intention
-from dt_highway.evaluation.matching import (
-    OUTPUT_FILES,
-    SWEEP_FILES,
-    run_matching,
-    run_sweep,
-    write_outputs,
-    write_sweep,
-)
-from dt_highway.evaluation.rl import (
+from dt_highway.choices import (
     COMPARE_SCENARIO,
     COMPARE_SEED,
-    compare_paths,
-    markdown_table,
-    parse_rows,
-    rl_compare,
-    write_compare,
+    CONDITIONS,
+    CRASH_POLICIES,
+    DEFAULT_PROTOCOL,
+    HIDEABLE,
+    INTENT_EPISODES,
+    OUTPUT_FILES,
+    PICTURE_HIDEABLE,
+    PICTURE_REVEALABLE,
+    POPULATIONS,
+    SCORE_THRESHOLDS,
+    STARTS,
+    SWEEP_FILES,
+    TEST_SEED,
+    TRAIN_SEED,
 )
-from dt_highway.evaluation.rl import evaluate as evaluate_driver
-from dt_highway.evaluation.tagger_train import train_tagger, training_steps
-from dt_highway.evaluation.twin import episode_steps, evaluate_twin
-from dt_highway.hmi.briefing import DEFAULT_PROTOCOL, load_protocol
-from dt_highway.hmi.drive import CRASH_POLICIES, DriveOptions, open_wheel, parse_size, run_drive
-from dt_highway.hmi.keys import KeyScript, KeyScriptError
-from dt_highway.hmi.replay import replay_frames_in, replay_trial
-from dt_highway.hmi.session import run_session
+from dt_highway.errors import ConfigError
 from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
-from dt_highway.rl.config import load_train_config
-from dt_highway.rl.files import sidecar_path
-from dt_highway.study import check_backend, freeze_inputs, is_completed, plan, run_study
 
-# Heavy modules are imported by the commands that need them, so that ``dt-highway --help`` and
-# the light commands start fast: the report (scipy.stats), the learned detector (torch) and RL
-# training (stable-baselines3 and torch).
+if TYPE_CHECKING:
+    from dt_highway.config import DTConfig
+    from dt_highway.drivers import Driver
+    from dt_highway.hmi.drive import DriveOptions
+
+# Every command imports what it runs when it runs, so that ``dt-highway --help``, each command's ``--help`` and a
+# mistyped option answer in well under a second: the parser needs only the light modules above (the choices it
+# offers, the error it reports). The simulation (highway-env, matplotlib, numba), the report (scipy.stats), the
+# learned detector (torch) and RL training (stable-baselines3 and torch) take 2-4 s to import.
 
 
 class _Parser(argparse.ArgumentParser):
@@ -164,6 +116,8 @@ def _wheel_index(text: str) -> int:
 
 
 def _window_size(text: str) -> tuple[int, int]:
+    from dt_highway.hmi.drive import parse_size
+
     try:
         return parse_size(text)
     except ConfigError as err:
@@ -187,6 +141,8 @@ def _add_result_out(p: argparse.ArgumentParser, text: str) -> None:
 
 
 def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DTConfig:
+    from dt_highway.config import load_config
+
     return load_config(args.scenario, args.overrides, extra)
 
 
@@ -259,6 +215,9 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway twin-eval``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import override_value
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
+
     if args.population is not None:
         for text in args.overrides:
             set_to = override_value(text, "traffic.population")
@@ -331,6 +290,10 @@ def _write_result(path: str, result: Any) -> None:
 def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, Any] | None]:
     """The ``--driver`` of ``twin-eval --intent`` and ``train-intent``: the driver, and what it adds to the
     configuration (the baseline condition and the driver's overrides, as in a study trial)."""
+    from dt_highway.conditions import condition_config
+    from dt_highway.config import deep_merge
+    from dt_highway.drivers import load_driver
+
     if args.driver is None:
         return None, None
     driver = load_driver(args.driver)
@@ -339,6 +302,10 @@ def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, A
 
 def _twin_eval_intent(args: argparse.Namespace) -> int:
     """``twin-eval --intent [--sweep]``: the lane-change intention against the simulator's truth."""
+    from dt_highway.evaluation.intent import evaluate_intent, format_intent, format_sweep, run_intent_sweep, sweep_steps
+    from dt_highway.evaluation.intent_oracle import OracleSettings
+    from dt_highway.evaluation.twin import episode_steps
+
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     driver, extra = _intent_driver(args)
@@ -390,6 +357,8 @@ def cmd_train_tagger(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-tagger``
     :return: the exit status (0 on success)
     """
+    from dt_highway.evaluation.tagger_train import train_tagger, training_steps
+
     args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
     _weights_out(args, ".json")
@@ -410,6 +379,10 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-intent``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import deep_merge, merge, parse_override
+    from dt_highway.evaluation.intent_train import train_intention
+    from dt_highway.evaluation.twin import episode_steps
+
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     driver, extra = _intent_driver(args)
@@ -443,6 +416,9 @@ def cmd_train_chase(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-chase``
     :return: the exit status (0 on success)
     """
+    from dt_highway.evaluation.chase_train import train_chase
+    from dt_highway.evaluation.twin import episode_steps
+
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     cfg = _config(args)
@@ -478,6 +454,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway run``
     :return: the exit status (0 on success)
     """
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
+
     cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -519,6 +497,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway calibrate``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import find_file
+    from dt_highway.drivers import load_driver
+    from dt_highway.evaluation.calibration import (
+        calibrate,
+        calibration_table,
+        check_table_kept,
+        check_values,
+        knob_value,
+        markdown,
+        split_values,
+    )
+
     key, sep, values = args.knob.partition("=")
     if not sep or not key.strip() or not values.strip():
         raise ConfigError(f"--knob must be KEY=V1,V2,... e.g. traffic.dangerous.brake_mps2=2,3,4 (got {args.knob!r})")
@@ -573,7 +563,12 @@ def cmd_study(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway study``
     :return: the exit status: 0 when every trial ran or was done already, 1 when one failed, 130 on Ctrl-C
     """
+    from dt_highway.conditions import driver_config
+    from dt_highway.config import find_file, load_config
+    from dt_highway.drivers import load_driver
+    from dt_highway.env.seat import DriverSeat
     from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
+    from dt_highway.study import check_backend, freeze_inputs, is_completed, plan, run_study
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
@@ -605,6 +600,7 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.parquet:
         try:
             import pyarrow  # lazy: optional extra (pip install dt-highway[parquet]) # noqa: F401
+
         except ImportError:
             raise ConfigError("--parquet needs pyarrow: pip install 'dt-highway[parquet]'") from None
     frozen_driver, frozen_scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
@@ -647,6 +643,8 @@ def _check_study_out(out: str) -> None:
 
 def _interrupted(specs: Sequence[Any], out: str) -> None:
     """After Ctrl-C: what is done, and the command that resumes the study."""
+    from dt_highway.study import is_completed
+
     n = sum(is_completed(s.directory) for s in specs)
     if sys.argv[1:2] == ["study"]:
         again = shlex.join(["dt-highway", *sys.argv[1:]])
@@ -677,6 +675,8 @@ def cmd_drive(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway drive``
     :return: the exit status: 0 when the trial completed or ended by a collision, else 1
     """
+    from dt_highway.hmi.drive import run_drive
+
     opts = _drive_options(args, args.condition)
     result = run_drive(opts)
     if result["status"] == "not started":  # no folder was written
@@ -689,6 +689,9 @@ def cmd_drive(args: argparse.Namespace) -> int:
 
 def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
     """The options of a keyboard trial from the command line (drive and session)."""
+    from dt_highway.hmi.drive import DriveOptions
+    from dt_highway.hmi.keys import KeyScript, KeyScriptError
+
     try:
         script = KeyScript.load(args.keys_from) if args.keys_from else None
     except KeyScriptError as err:
@@ -715,6 +718,10 @@ def cmd_session(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway session``
     :return: the exit status: 0 when the session is complete, 1 when it stopped early
     """
+    from dt_highway.hmi.briefing import load_protocol
+    from dt_highway.hmi.drive import open_wheel
+    from dt_highway.hmi.session import run_session
+
     base = _drive_options(args, "baseline")
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
@@ -740,6 +747,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway replay``
     :return: the exit status: 0 when the ego followed the log, 1 when it left the logged path
     """
+    from dt_highway.hmi.replay import replay_trial
+
     if args.every_s is not None and not args.frames_out:
         raise ConfigError("--every-s S needs --frames-out DIR")
     if args.speed != 1.0 and args.frames_out:
@@ -785,6 +794,8 @@ def cmd_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway camera``
     :return: the exit status (0 on success)
     """
+    from dt_highway.evaluation.frames import frame_files, record_frames
+
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
@@ -809,6 +820,9 @@ def cmd_matching(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway matching``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import merge
+    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+
     cfg = _config(args)
     kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
     bad = [k for k in kinds if k not in ("simulated", "learned")]
@@ -871,6 +885,8 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench camera``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_camera
+
     cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
         result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
@@ -897,6 +913,8 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench fusion``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_fusion
+
     if args.boxes > MAX_BENCH_BOXES:
         raise ConfigError(f"--boxes must be at most {MAX_BENCH_BOXES} (got {args.boxes})")
     result = bench_fusion(args.frames, args.boxes)
@@ -915,6 +933,8 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench drive``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_drive
+
     result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
                          find_file_or_default(args.scenario), list(args.overrides))
     if args.json:
@@ -939,6 +959,8 @@ def find_file_or_default(scenario: str | None) -> str:
     :param scenario: the scenario file given (``None``: the default)
     :return: the path to read (:func:`~dt_highway.config.find_file`)
     """
+    from dt_highway.config import find_file
+
     return find_file(scenario or STUDY_SCENARIO, "envs")
 
 
@@ -948,6 +970,8 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench memory``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_memory
+
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
         default = " (the default)" if args.every_min == 10.0 else ""
         raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
@@ -1070,6 +1094,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train``
     :return: the exit status: 0 on success, 130 when training was interrupted
     """
+    from dt_highway.rl.config import load_train_config
+    from dt_highway.rl.files import sidecar_path
     from dt_highway.rl.train import train  # lazy: stable-baselines3 and torch (~1.3 s)
 
     cfg = load_train_config(args.config)
@@ -1116,6 +1142,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway evaluate``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import load_config
+    from dt_highway.drivers import load_driver
+    from dt_highway.evaluation.rl import evaluate as evaluate_driver
+
     if args.episodes_json and not args.json:
         raise ConfigError("--episodes-json needs --json (--out FILE writes every episode's metrics without it)")
     scenario = args.scenario or EVAL_SCENARIO
@@ -1153,6 +1183,9 @@ def cmd_rl_compare(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway rl-compare``
     :return: the exit status (0 on success)
     """
+    from dt_highway.config import load_config
+    from dt_highway.evaluation.rl import compare_paths, markdown_table, parse_rows, rl_compare, write_compare
+
     rows = parse_rows(args.rows)  # a bad row: one line, before any env
     held = [p.name for p in compare_paths(args.out) if p.exists()]
     if held and not args.force:  # an earlier comparison (hours of episodes) is not replaced unasked
@@ -1204,6 +1237,8 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench sim``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_sim, deviation_steps
+
     try:
         deviation_steps(args.deviation_s)  # before the throughput runs
     except ValueError as exc:
@@ -1234,6 +1269,9 @@ def cmd_bench_train(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench train``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_train
+    from dt_highway.rl.config import load_train_config
+
     cfg = load_train_config(args.config)
     total = 2 * args.env_steps + 2 * args.timesteps  # PPO rounds up to whole rollouts: about
     with _progress(total, "bench train", args.quiet or args.json) as bar:
@@ -1271,6 +1309,8 @@ def cmd_bench_detector(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench detector``
     :return: the exit status (0 on success)
     """
+    from dt_highway.bench import bench_detector
+
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
     except (FileNotFoundError, ValueError) as exc:
@@ -1761,9 +1801,12 @@ def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target
                           "to replace them, or another --out")
     if attr in ("out_json", "profile") and target.is_file():
         raise ConfigError(f"{option} {target} exists: pass --force to replace it, or name another file")
-    if attr == "frames_out" and (frames := replay_frames_in(target)):
-        raise ConfigError(f"{option} {target} holds {len(frames)} frames of an earlier replay: pass --force to "
-                          "replace them, or name another folder")
+    if attr == "frames_out":
+        from dt_highway.hmi.replay import replay_frames_in  # only replay writes frames
+
+        if frames := replay_frames_in(target):
+            raise ConfigError(f"{option} {target} holds {len(frames)} frames of an earlier replay: pass --force to "
+                              "replace them, or name another folder")
 
 
 def _os_error(exc: OSError) -> str:

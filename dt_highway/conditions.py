@@ -25,12 +25,10 @@ from typing import Any
 
 from highway_env.road.lane import StraightLane
 
+from dt_highway.choices import CONDITIONS
 from dt_highway.config import ConfigError, DTConfig, check_overrides, deep_merge, load_config, override_value
 from dt_highway.twin.cloud import check_models
 from dt_highway.twin.tagger import HighwayMap
-
-CONDITIONS = ("baseline", "adas", "adas-type", "adas-threat", "sham", "sham-type", "sham-threat")
-"""Every condition a study or a keyboard session can run"""
 
 _MODE = {"adas-type": "type", "adas-threat": "threat", "sham-type": "type", "sham-threat": "threat"}
 

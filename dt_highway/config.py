@@ -46,13 +46,10 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from dt_highway.errors import ConfigError
 from dt_highway.jsonio import finite_number
 
 _S = TypeVar("_S", bound=BaseModel)
-
-
-class ConfigError(ValueError):
-    """A configuration mistake, described in one line (dotted key and what is allowed)."""
 
 
 def _plain(annotation: Any) -> tuple[Any, ...]:
@@ -492,10 +489,6 @@ class ContinuumConfig(_Section):
         :return: the parameters' distributions by name, in the order they are drawn
         """
         return {name: getattr(self, name) for name in CONTINUUM_LIMITS}
-
-
-POPULATIONS = ("two_class", "continuum")
-"""``traffic.population``: two driver classes with fixed parameters, or a continuum of drivers"""
 
 
 class DangerousCutInConfig(_Section):

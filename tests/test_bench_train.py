@@ -101,7 +101,7 @@ def test_bench_train_runs_tiny_and_prints_its_fields(tmp_path, capsys, monkeypat
     assert r["speedup"] == pytest.approx(fast["steps_per_s"] / today["steps_per_s"], abs=0.01)
     assert r["target_steps_per_s"] == 300 and r["target_met"] == (fast["steps_per_s"] >= 300)
     # the text form names each number
-    monkeypatch.setattr("dt_highway.cli.bench_train", lambda *a, **k: r)
+    monkeypatch.setattr("dt_highway.bench.bench_train", lambda *a, **k: r)
     assert main(args) == 0
     text = capsys.readouterr().out
     assert f"PPO today: {today['steps_per_s']} steps/s (1 env, DummyVecEnv; 64 steps" in text

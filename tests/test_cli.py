@@ -2,6 +2,7 @@
 
 import io
 import json
+import os
 import subprocess
 import sys
 import warnings
@@ -21,6 +22,37 @@ def test_help_lists_commands(capsys):
     assert proc.returncode == 0
     for cmd in ("run", "twin-eval", "bench"):
         assert cmd in proc.stdout
+
+
+HEAVY = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pygame", "pandas", "cv2", "pydantic",
+         "stable_baselines3", "dt_highway.env", "dt_highway.config", "dt_highway.study")
+"""What ``dt-highway --help`` has no need of (2-4 s to import): the simulation, the config models, the study"""
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["study", "--help"], ["session", "--help"], ["bench", "sim", "--help"],
+                                  ["study", "--bogus"], ["drive", "--condition", "nope"], []])
+def test_help_and_a_mistyped_command_line_import_no_simulation(argv):
+    code = (f"import sys\nfrom dt_highway.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+            f"print([m for m in sys.modules if m.startswith({HEAVY!r})], file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.stderr.splitlines()[-1] == "[]", proc.stderr
+    assert proc.stdout.strip() or "error" in proc.stderr  # it answered: help, or the one-line error
+
+
+def test_import_registers_the_env_and_imports_it_when_first_used():
+    code = ("import sys\nimport gymnasium as gym\nimport dt_highway\n"
+            "assert 'dt-highway-v0' in gym.registry and 'highway_env' not in sys.modules\n"
+            "import dt_highway.hmi.screens\n"  # pygame before highway-env: no banner (gymnasium hides it)
+            "assert dt_highway.DTConfig.__module__ == 'dt_highway.config' and dt_highway.env.core.DTHighwayEnv\n"
+            "assert {'load_trial', 'DTHighwayEnv', 'metrics'} <= set(dir(dt_highway))\n"
+            "try:\n    dt_highway.no_such_name\nexcept AttributeError as exc:\n    print(exc, file=sys.stderr)\n"
+            "env = gym.make('dt-highway-v0', config={'highway': {'vehicles_count': 5}, 'camera': {'enabled': False}})\n"
+            "assert type(env.unwrapped) is dt_highway.DTHighwayEnv\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, "SDL_VIDEODRIVER": "offscreen"})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == ""  # pygame's banner is hidden
+    assert "module 'dt_highway' has no attribute 'no_such_name'" in proc.stderr
 
 
 def test_twin_eval_json(capsys):

@@ -187,7 +187,6 @@ def test_twin_eval_scores_the_oracle_on_the_same_estimates_and_its_mistakes_are_
 def test_twin_eval_names_what_the_oracle_was_denied(capsys, monkeypatch):
     import json
 
-    from dt_highway import cli
     from dt_highway.cli import main
 
     args = ["twin-eval", "--intent", "--episodes", "1", "--oracle", "2", "--oracle-hide", "timers, attempts", "--quiet", *TINY]
@@ -197,8 +196,8 @@ def test_twin_eval_names_what_the_oracle_was_denied(capsys, monkeypatch):
     assert "oracle (the simulator's whole state but attempts, timers, 2 simulated futures" in capsys.readouterr().out
     # a hidden position is off by one fix of the uplink evaluated
     seen = []
-    monkeypatch.setattr(cli, "evaluate_intent", lambda *a, oracle, **k: seen.append(oracle) or {})
-    monkeypatch.setattr(cli, "format_intent", lambda result: [])
+    monkeypatch.setattr("dt_highway.evaluation.intent.evaluate_intent", lambda *a, oracle, **k: seen.append(oracle) or {})
+    monkeypatch.setattr("dt_highway.evaluation.intent.format_intent", lambda result: [])
     noisy = ["--set", "twin.uplink.noise_sigma_m=3", "--set", "twin.uplink.speed_noise_sigma_mps=0.5"]
     assert main([*args, "--oracle-hide", "positions", *noisy]) == 0
     assert (seen[0].hide, seen[0].sigma_position_m, seen[0].sigma_speed_mps) == (frozenset({"positions"}), 3.0, 0.5)

@@ -1,7 +1,8 @@
 """``dt-highway-v0``: the env (core loop), its ADAS pipeline, observations and actions, and the
 driver's seat (what a driver is given: :mod:`~dt_highway.env.senses`, :class:`DriverSeat`)."""
 
-from dt_highway.env.core import ENV_ID, DTHighwayEnv, make_camera
+from dt_highway import ENV_ID
+from dt_highway.env.core import DTHighwayEnv, make_camera
 from dt_highway.env.observations import (
     CameraObservation,
     OverlayKinematics,

@@ -92,8 +92,6 @@ from dt_highway.world.traffic import (
 )
 from dt_highway.world.vehicle import FastIDMVehicle, velocity
 
-ENV_ID = "dt-highway-v0"
-
 
 def make_camera(cfg: CameraConfig, scene: RoadScene) -> CameraRenderer:
     """Build the renderer described by a ``camera`` config section for a road.

@@ -21,18 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from dt_highway.choices import SCORE_THRESHOLDS, TEST_SEED
 from dt_highway.config import DTConfig
 from dt_highway.evaluation.intent import Episode, record_episodes
 from dt_highway.evaluation.intent_train import numpy_layers, train_epochs
 from dt_highway.evaluation.twin import auc
 from dt_highway.twin.chase import CHASE_FEATURES, HIDDEN, ChaseDetector, ChaseInputs, save_chase_weights
 
-TRAIN_SEED = 1000
-"""First training seed by default (as ``train-intent``'s)"""
-TEST_SEED = 5000
-"""First held-out seed of the score by default"""
-SCORE_THRESHOLDS = (0.3, 0.5, 0.7)
-"""Precision and recall are reported at these thresholds [-]"""
 NEAR_M = 200.0
 """'Near the ego': in its lane or a neighbouring one, within this distance along the road (the trial world's cut-in
 search range) [m]"""

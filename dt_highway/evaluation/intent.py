@@ -93,8 +93,6 @@ MIN_PRECISION = 0.80
 MIN_RECALL = 0.90
 """With ``MIN_PRECISION``, the recall of the target: ``longest_lead`` is the threshold with both and the longest
 median lead [-]"""
-INTENT_EPISODES = 10
-"""Episodes of ``twin-eval --intent`` by default"""
 LEAD_STEPS_S = (1.0, 1.5, 2.0)
 """The share of cut-ins warned at least this far ahead is reported for each [s]"""
 SWEEP = (

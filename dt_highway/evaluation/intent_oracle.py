@@ -84,6 +84,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from highway_env.road.road import Road, RoadNetwork
 
+from dt_highway.choices import HIDEABLE, PICTURE_HIDEABLE, PICTURE_REVEALABLE, STARTS
 from dt_highway.twin.chase import ChaseDetector
 from dt_highway.twin.intention import TwinPicture
 from dt_highway.world.continuum import DriverProfile
@@ -96,17 +97,8 @@ if TYPE_CHECKING:
 
 ORACLE_PERIOD_S = 0.2
 """The oracle runs at most this often; an estimate in between reuses the last run [s]"""
-HIDEABLE = ("positions", "speeds", "timers", "attempts", "unseen_attempts")
-"""What the oracle starting from the simulator's state can be denied (see the module docstring)"""
-PICTURE_HIDEABLE = ("chases",)
-"""What the oracle starting from the twin's picture can be denied: the twin's estimate of who is chasing the ego"""
-PICTURE_REVEALABLE = ("chases", "lateral", "types", "positions", "attempts")
-"""What of the simulator's state the oracle starting from the twin's picture can be given instead of the twin's
-estimate (see the module docstring)"""
 GIVES_CHASES = frozenset({"chases", "attempts"})
 """The parts of :data:`PICTURE_REVEALABLE` that make the picture's chases the simulator's (open attempts give them)"""
-STARTS = ("state", "picture")
-"""What the copies start from: the simulator's state, or the twin's picture (see the module docstring)"""
 MOVING_OFFSET_M = 0.5
 """A pictured vehicle this far off its lane's centre ... [m]"""
 MOVING_LATERAL_MPS = 0.3

@@ -30,6 +30,7 @@ import numpy as np
 from dt_highway.camera.pinhole import PinholeCamera
 from dt_highway.camera.render import CameraImage
 from dt_highway.camera.truth import CameraTruth
+from dt_highway.choices import OUTPUT_FILES, SWEEP_FILES
 from dt_highway.config import DTConfig, merge
 from dt_highway.env import DTHighwayEnv
 from dt_highway.evaluation.twin import uplink_sweep_runs
@@ -289,11 +290,7 @@ def _settings(cfg: DTConfig, seed: int, bench: BenchmarkSettings) -> dict[str, A
     }
 
 
-OUTPUT_FILES = ("curve.csv", "summary.json", "frames.csv", "curve.png")
-"""What :func:`write_outputs` writes, in this order"""
 
-SWEEP_FILES = ("sweep.csv", "sweep.json", "sweep.png")
-"""What :func:`write_sweep` writes, in this order"""
 
 
 def write_outputs(result: MatchingResult, out: Path) -> list[Path]:

@@ -26,6 +26,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from dt_highway.choices import COMPARE_SCENARIO, COMPARE_SEED
 from dt_highway.conditions import CONDITIONS, driver_config
 from dt_highway.config import ConfigError
 from dt_highway.drivers import Driver, load_driver
@@ -163,9 +164,6 @@ COMPARE_DEFINITIONS = {
                            "(capped at safety.TTC_CAP_S); episodes without a cut-in have none",
     "speed_mean_kmh": "ego speed, mean over the episode's simulation steps",
 }
-COMPARE_SCENARIO = "envs/highway-trial.toml"
-COMPARE_SEED = 10000
-"""First held-out seed: apart from training (seed 0.. of the training envs) and the studies' seeds"""
 
 
 @dataclass(frozen=True)

@@ -24,22 +24,19 @@ import string
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 import pygame.freetype
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from dt_highway.choices import DEFAULT_PROTOCOL
 from dt_highway.config import ConfigError, read_toml
 from dt_highway.hmi.marks_example import marks_example
 from dt_highway.hmi.window import open_display
-
-DEFAULT_PROTOCOL = Path(str(resources.files("dt_highway.hmi").joinpath("protocols", "default.toml")))
-"""The protocol a session follows unless told otherwise"""
 
 PLACEHOLDERS = ("label", "number", "total", "duration")
 """The placeholders a protocol's texts may use"""

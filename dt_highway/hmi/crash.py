@@ -12,13 +12,10 @@ from collections.abc import Iterator
 
 import cv2
 import numpy as np
-import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.screens import _scale, _text
-
-CRASH_POLICIES = ("end", "continue")
-"""What a crash does to a keyboard trial: end it, or put the ego back on the road and go on"""
 
 CRASH_BANNER_S = 1.5
 """How long the "COLLISION" banner stays up [s of wall time]"""

@@ -53,15 +53,15 @@ from typing import Any
 import cv2
 import gymnasium as gym
 import numpy as np
-import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 
+from dt_highway.choices import CRASH_POLICIES
 from dt_highway.conditions import condition_config
 from dt_highway.config import ConfigError, DTConfig, deep_merge, load_config
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.crash import (
     CRASH_BANNER_S,
     CRASH_FLASH_S,
-    CRASH_POLICIES,
     CrashBeep,
     CrashView,
     beep_samples,

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 
 import cv2
 import numpy as np
-import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 
 from dt_highway.hmi.briefing import Screen, render_screen
 from dt_highway.hmi.keys import KeyEvent

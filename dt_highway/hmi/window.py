@@ -20,7 +20,7 @@ from typing import Any, Protocol, Self
 
 import cv2
 import numpy as np
-import pygame  # loaded (without its banner) by highway-env already, which sets PYGAME_HIDE_SUPPORT_PROMPT
+import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 
 WINDOW_TITLE = "dt-highway"
 """The window's title (never the condition)"""
