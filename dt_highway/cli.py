@@ -43,6 +43,7 @@ from dt_highway.choices import (
     TRAIN_SEED,
 )
 from dt_highway.errors import ConfigError
+from dt_highway.hmi.keys import KeyScript, KeyScriptError
 from dt_highway.interrupts import interrupted_by_user
 from dt_highway.jsonio import dump_json
 
@@ -116,7 +117,7 @@ def _wheel_index(text: str) -> int:
 
 
 def _window_size(text: str) -> tuple[int, int]:
-    from dt_highway.hmi.drive import parse_size
+    from dt_highway.hmi.drive import parse_size  # lazy: highway-env
 
     try:
         return parse_size(text)
@@ -141,7 +142,7 @@ def _add_result_out(p: argparse.ArgumentParser, text: str) -> None:
 
 
 def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> DTConfig:
-    from dt_highway.config import load_config
+    from dt_highway.config import load_config  # lazy: pydantic
 
     return load_config(args.scenario, args.overrides, extra)
 
@@ -215,8 +216,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway twin-eval``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import override_value
-    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
+    from dt_highway.config import override_value  # lazy: pydantic
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin  # lazy: highway-env
 
     if args.population is not None:
         for text in args.overrides:
@@ -290,9 +291,9 @@ def _write_result(path: str, result: Any) -> None:
 def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, Any] | None]:
     """The ``--driver`` of ``twin-eval --intent`` and ``train-intent``: the driver, and what it adds to the
     configuration (the baseline condition and the driver's overrides, as in a study trial)."""
-    from dt_highway.conditions import condition_config
-    from dt_highway.config import deep_merge
-    from dt_highway.drivers import load_driver
+    from dt_highway.conditions import condition_config  # lazy: highway-env
+    from dt_highway.config import deep_merge  # lazy: pydantic
+    from dt_highway.drivers import load_driver  # lazy: highway-env
 
     if args.driver is None:
         return None, None
@@ -302,9 +303,15 @@ def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, A
 
 def _twin_eval_intent(args: argparse.Namespace) -> int:
     """``twin-eval --intent [--sweep]``: the lane-change intention against the simulator's truth."""
-    from dt_highway.evaluation.intent import evaluate_intent, format_intent, format_sweep, run_intent_sweep, sweep_steps
-    from dt_highway.evaluation.intent_oracle import OracleSettings
-    from dt_highway.evaluation.twin import episode_steps
+    from dt_highway.evaluation.intent import (  # lazy: highway-env
+        evaluate_intent,
+        format_intent,
+        format_sweep,
+        run_intent_sweep,
+        sweep_steps,
+    )
+    from dt_highway.evaluation.intent_oracle import OracleSettings  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
 
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
@@ -357,7 +364,7 @@ def cmd_train_tagger(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-tagger``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.tagger_train import train_tagger, training_steps
+    from dt_highway.evaluation.tagger_train import train_tagger, training_steps  # lazy: highway-env
 
     args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
@@ -379,9 +386,9 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-intent``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import deep_merge, merge, parse_override
-    from dt_highway.evaluation.intent_train import train_intention
-    from dt_highway.evaluation.twin import episode_steps
+    from dt_highway.config import deep_merge, merge, parse_override  # lazy: pydantic
+    from dt_highway.evaluation.intent_train import train_intention  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
 
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
@@ -416,8 +423,8 @@ def cmd_train_chase(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-chase``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.chase_train import train_chase
-    from dt_highway.evaluation.twin import episode_steps
+    from dt_highway.evaluation.chase_train import train_chase  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
 
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
@@ -454,7 +461,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway run``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.twin import episode_steps, evaluate_twin
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin  # lazy: highway-env
 
     cfg = _config(args)
     out = Path(args.out)
@@ -497,9 +504,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway calibrate``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import find_file
-    from dt_highway.drivers import load_driver
-    from dt_highway.evaluation.calibration import (
+    from dt_highway.config import find_file  # lazy: pydantic
+    from dt_highway.drivers import load_driver  # lazy: highway-env
+    from dt_highway.evaluation.calibration import (  # lazy: highway-env
         calibrate,
         calibration_table,
         check_table_kept,
@@ -563,12 +570,12 @@ def cmd_study(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway study``
     :return: the exit status: 0 when every trial ran or was done already, 1 when one failed, 130 on Ctrl-C
     """
-    from dt_highway.conditions import driver_config
-    from dt_highway.config import find_file, load_config
-    from dt_highway.drivers import load_driver
-    from dt_highway.env.seat import DriverSeat
+    from dt_highway.conditions import driver_config  # lazy: highway-env
+    from dt_highway.config import find_file, load_config  # lazy: pydantic
+    from dt_highway.drivers import load_driver  # lazy: highway-env
+    from dt_highway.env.seat import DriverSeat  # lazy: highway-env
     from dt_highway.report import write_report  # lazy: heavy (scipy.stats, ~0.35 s)
-    from dt_highway.study import check_backend, freeze_inputs, is_completed, plan, run_study
+    from dt_highway.study import check_backend, freeze_inputs, is_completed, plan, run_study  # lazy: highway-env
 
     if args.quick:
         driver = find_file(args.driver or QUICK["driver"], "agents")
@@ -643,7 +650,7 @@ def _check_study_out(out: str) -> None:
 
 def _interrupted(specs: Sequence[Any], out: str) -> None:
     """After Ctrl-C: what is done, and the command that resumes the study."""
-    from dt_highway.study import is_completed
+    from dt_highway.study import is_completed  # lazy: highway-env
 
     n = sum(is_completed(s.directory) for s in specs)
     if sys.argv[1:2] == ["study"]:
@@ -675,7 +682,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway drive``
     :return: the exit status: 0 when the trial completed or ended by a collision, else 1
     """
-    from dt_highway.hmi.drive import run_drive
+    from dt_highway.hmi.drive import run_drive  # lazy: highway-env
 
     opts = _drive_options(args, args.condition)
     result = run_drive(opts)
@@ -689,8 +696,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
 
 def _drive_options(args: argparse.Namespace, condition: str) -> DriveOptions:
     """The options of a keyboard trial from the command line (drive and session)."""
-    from dt_highway.hmi.drive import DriveOptions
-    from dt_highway.hmi.keys import KeyScript, KeyScriptError
+    from dt_highway.hmi.drive import DriveOptions  # lazy: highway-env
 
     try:
         script = KeyScript.load(args.keys_from) if args.keys_from else None
@@ -718,9 +724,9 @@ def cmd_session(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway session``
     :return: the exit status: 0 when the session is complete, 1 when it stopped early
     """
-    from dt_highway.hmi.briefing import load_protocol
-    from dt_highway.hmi.drive import open_wheel
-    from dt_highway.hmi.session import run_session
+    from dt_highway.hmi.briefing import load_protocol  # lazy: highway-env
+    from dt_highway.hmi.drive import open_wheel  # lazy: highway-env
+    from dt_highway.hmi.session import run_session  # lazy: highway-env
 
     base = _drive_options(args, "baseline")
     open_wheel(base)  # no such wheel: one line naming --wheel now, not after the briefing
@@ -747,7 +753,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway replay``
     :return: the exit status: 0 when the ego followed the log, 1 when it left the logged path
     """
-    from dt_highway.hmi.replay import replay_trial
+    from dt_highway.hmi.replay import replay_trial  # lazy: highway-env
 
     if args.every_s is not None and not args.frames_out:
         raise ConfigError("--every-s S needs --frames-out DIR")
@@ -794,7 +800,7 @@ def cmd_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway camera``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.frames import frame_files, record_frames
+    from dt_highway.evaluation.frames import frame_files, record_frames  # lazy: highway-env
 
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
@@ -820,8 +826,8 @@ def cmd_matching(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway matching``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import merge
-    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep
+    from dt_highway.config import merge  # lazy: pydantic
+    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep  # lazy: highway-env
 
     cfg = _config(args)
     kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
@@ -885,7 +891,7 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench camera``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_camera
+    from dt_highway.bench import bench_camera  # lazy: highway-env
 
     cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
@@ -913,7 +919,7 @@ def cmd_bench_fusion(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench fusion``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_fusion
+    from dt_highway.bench import bench_fusion  # lazy: highway-env
 
     if args.boxes > MAX_BENCH_BOXES:
         raise ConfigError(f"--boxes must be at most {MAX_BENCH_BOXES} (got {args.boxes})")
@@ -933,7 +939,7 @@ def cmd_bench_drive(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench drive``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_drive
+    from dt_highway.bench import bench_drive  # lazy: highway-env
 
     result = bench_drive(args.duration, args.vehicles, args.width, args.height, args.condition, args.seed,
                          find_file_or_default(args.scenario), list(args.overrides))
@@ -959,7 +965,7 @@ def find_file_or_default(scenario: str | None) -> str:
     :param scenario: the scenario file given (``None``: the default)
     :return: the path to read (:func:`~dt_highway.config.find_file`)
     """
-    from dt_highway.config import find_file
+    from dt_highway.config import find_file  # lazy: pydantic
 
     return find_file(scenario or STUDY_SCENARIO, "envs")
 
@@ -970,7 +976,7 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench memory``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_memory
+    from dt_highway.bench import bench_memory  # lazy: highway-env
 
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
         default = " (the default)" if args.every_min == 10.0 else ""
@@ -1094,8 +1100,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train``
     :return: the exit status: 0 on success, 130 when training was interrupted
     """
-    from dt_highway.rl.config import load_train_config
-    from dt_highway.rl.files import sidecar_path
+    from dt_highway.rl.config import load_train_config  # lazy: highway-env
+    from dt_highway.rl.files import sidecar_path  # lazy: highway-env
     from dt_highway.rl.train import train  # lazy: stable-baselines3 and torch (~1.3 s)
 
     cfg = load_train_config(args.config)
@@ -1142,9 +1148,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway evaluate``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import load_config
-    from dt_highway.drivers import load_driver
-    from dt_highway.evaluation.rl import evaluate as evaluate_driver
+    from dt_highway.config import load_config  # lazy: pydantic
+    from dt_highway.drivers import load_driver  # lazy: highway-env
+    from dt_highway.evaluation.rl import evaluate as evaluate_driver  # lazy: highway-env
 
     if args.episodes_json and not args.json:
         raise ConfigError("--episodes-json needs --json (--out FILE writes every episode's metrics without it)")
@@ -1183,8 +1189,14 @@ def cmd_rl_compare(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway rl-compare``
     :return: the exit status (0 on success)
     """
-    from dt_highway.config import load_config
-    from dt_highway.evaluation.rl import compare_paths, markdown_table, parse_rows, rl_compare, write_compare
+    from dt_highway.config import load_config  # lazy: pydantic
+    from dt_highway.evaluation.rl import (  # lazy: highway-env
+        compare_paths,
+        markdown_table,
+        parse_rows,
+        rl_compare,
+        write_compare,
+    )
 
     rows = parse_rows(args.rows)  # a bad row: one line, before any env
     held = [p.name for p in compare_paths(args.out) if p.exists()]
@@ -1237,7 +1249,7 @@ def cmd_bench_sim(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench sim``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_sim, deviation_steps
+    from dt_highway.bench import bench_sim, deviation_steps  # lazy: highway-env
 
     try:
         deviation_steps(args.deviation_s)  # before the throughput runs
@@ -1269,8 +1281,8 @@ def cmd_bench_train(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench train``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_train
-    from dt_highway.rl.config import load_train_config
+    from dt_highway.bench import bench_train  # lazy: highway-env
+    from dt_highway.rl.config import load_train_config  # lazy: highway-env
 
     cfg = load_train_config(args.config)
     total = 2 * args.env_steps + 2 * args.timesteps  # PPO rounds up to whole rollouts: about
@@ -1309,7 +1321,7 @@ def cmd_bench_detector(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench detector``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_detector
+    from dt_highway.bench import bench_detector  # lazy: highway-env
 
     try:
         result = bench_detector(_weights_arg(args.weights), args.batch, args.seconds, args.threads, *args.size)
@@ -1802,7 +1814,7 @@ def _check_not_replaced(args: argparse.Namespace, attr: str, option: str, target
     if attr in ("out_json", "profile") and target.is_file():
         raise ConfigError(f"{option} {target} exists: pass --force to replace it, or name another file")
     if attr == "frames_out":
-        from dt_highway.hmi.replay import replay_frames_in  # only replay writes frames
+        from dt_highway.hmi.replay import replay_frames_in  # lazy: highway-env; only replay writes frames
 
         if frames := replay_frames_in(target):
             raise ConfigError(f"{option} {target} holds {len(frames)} frames of an earlier replay: pass --force to "

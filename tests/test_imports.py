@@ -34,8 +34,11 @@ PACKAGE = "dt_highway"
 
 OPTIONAL = ("ray", "pyarrow", "tensorboard")
 """Optional extras (``pip install dt-highway[ray|parquet|tensorboard]``)"""
-HEAVY = ("torch", "stable_baselines3", "matplotlib", "jinja2", "pycocotools", "cv2", "scipy.stats")
-"""Dependencies whose import takes long enough to defer (torch, stable-baselines3 ~1.3 s; scipy.stats ~0.35 s)"""
+HEAVY = ("torch", "stable_baselines3", "matplotlib", "jinja2", "pycocotools", "cv2", "scipy.stats", "scipy.optimize",
+         "highway_env", "numba", "pandas", "pydantic")
+"""Dependencies whose import takes long enough to defer (after numpy and gymnasium, which ``import dt_highway``
+loads): torch, stable-baselines3 ~1.3 s; highway-env 0.7-1.3 s (matplotlib with it); scipy.stats 0.35-1.1 s,
+scipy.optimize ~0.5 s; pandas ~0.4 s; numba ~0.2 s; pydantic with the config models ~0.25 s"""
 LAZY_COMMENT = re.compile(r"#\s*lazy:\s*\S")
 
 
