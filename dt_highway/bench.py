@@ -7,6 +7,8 @@ import cProfile
 import gc
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
@@ -685,3 +687,51 @@ def bench_train(cfg: TrainConfig, timesteps: int = 8192, n_envs: int = 4, env_st
         "target_steps_per_s": TRAIN_TARGET_STEPS_PER_S if kinematic else None,
         "target_met": bool(fast >= TRAIN_TARGET_STEPS_PER_S) if kinematic else None,
     }
+
+
+STARTUP_CASES: dict[str, tuple[str, ...]] = {
+    "python (nothing imported)": ("-c", "pass"),
+    "dt-highway --help": ("-m", "dt_highway.cli", "--help"),
+    "dt-highway study --help": ("-m", "dt_highway.cli", "study", "--help"),
+    "dt-highway study --bogus (a mistake)": ("-m", "dt_highway.cli", "study", "--bogus"),
+    "import dt_highway": ("-c", "import dt_highway"),
+    "import dt_highway + gym.make": ("-c", "import gymnasium as gym, dt_highway\ngym.make('dt-highway-v0').close()"),
+}
+"""What ``bench startup`` times, each in a new Python process: the command line's answers that import no
+simulation, and the package's import with and without building the env"""
+
+STARTUP_QUICK = ("dt-highway --help", "dt-highway study --help", "dt-highway study --bogus (a mistake)")
+"""The answers that should feel immediate: help and a mistyped option"""
+
+STARTUP_TARGET_S = 0.5
+"""Each of :data:`STARTUP_QUICK` answers within this much wall time (median) [s]"""
+
+
+def bench_startup(repeats: int = 5, progress: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Wall time from starting Python to its exit for each of :data:`STARTUP_CASES`, in new processes.
+
+    Each case runs ``repeats`` times in turn (the first run of all may read the files from disk; the median
+    does not count it twice). The children run headless (``SDL_VIDEODRIVER=offscreen`` unless set).
+
+    :param repeats: runs of each case [-]
+    :param progress: called after each run (a progress bar)
+    :return: median, least and most wall time per case [s], the quick answers' target and whether each met it
+    :raises RuntimeError: a case failed (its last line of stderr)
+    """
+    env = {**os.environ, "SDL_VIDEODRIVER": os.environ.get("SDL_VIDEODRIVER", "offscreen")}
+    times: dict[str, list[float]] = {name: [] for name in STARTUP_CASES}
+    for _ in range(repeats):
+        for name, args in STARTUP_CASES.items():
+            t0 = time.perf_counter()
+            proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, check=False)
+            times[name].append(time.perf_counter() - t0)
+            expected = 2 if "--bogus" in args else 0
+            if proc.returncode != expected:
+                last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+                raise RuntimeError(f"{name} exited with {proc.returncode}: {last}")
+            if progress is not None:
+                progress()
+    cases = {name: {"median_s": round(float(np.median(t)), 3), "min_s": round(min(t), 3), "max_s": round(max(t), 3)}
+             for name, t in times.items()}
+    return {"repeats": repeats, "python": sys.executable, "cases": cases, "target_s": STARTUP_TARGET_S,
+            "target_met": {name: cases[name]["median_s"] <= STARTUP_TARGET_S for name in STARTUP_QUICK}}

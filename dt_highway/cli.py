@@ -970,6 +970,29 @@ def find_file_or_default(scenario: str | None) -> str:
     return find_file(scenario or STUDY_SCENARIO, "envs")
 
 
+def cmd_bench_startup(args: argparse.Namespace) -> int:
+    """``dt-highway bench startup``: how long the command line takes to answer, and ``import dt_highway``.
+
+    :param args: the parsed command line of ``dt-highway bench startup``
+    :return: the exit status (0 on success)
+    """
+    from dt_highway.bench import STARTUP_CASES, bench_startup  # lazy: highway-env
+
+    with _progress(args.repeats * len(STARTUP_CASES), "startup", args.quiet, unit="run") as bar:
+        result = bench_startup(args.repeats, bar.update)
+    if args.json:
+        print(dump_json(result))
+        return 0
+    width = max(map(len, result["cases"]))
+    for name, r in result["cases"].items():
+        print(f"{name:{width}s}  median {r['median_s']:.2f} s  (least {r['min_s']:.2f}, most {r['max_s']:.2f}; "
+              f"{result['repeats']} runs)")
+    met = [name for name, ok in result["target_met"].items() if ok]
+    print(f"target: help and a mistake answer within {result['target_s']} s (median): met by {len(met)} of "
+          f"{len(result['target_met'])}")
+    return 0
+
+
 def cmd_bench_memory(args: argparse.Namespace) -> int:
     """``dt-highway bench memory``: the env's memory over hours of simulated driving.
 
@@ -1713,6 +1736,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench_train)
+    p = bsub.add_parser("startup", help="wall time of --help, a mistyped option and import dt_highway, new processes")
+    p.add_argument("--repeats", type=_positive(int, "--repeats"), default=5, help="runs of each case (default 5)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench_startup)
     p = bsub.add_parser("memory", help="memory over hours of simulated time (ego on autopilot)")
     _add_config_args(p)
     p.add_argument("--hours", type=_positive(float, "--hours"), default=1.0, help="simulated hours (default 1)")

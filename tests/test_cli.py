@@ -81,6 +81,27 @@ def test_bench_memory_prints_numbers(capsys):
     assert result["samples"][-1]["rss_mb"] > 0
 
 
+def test_bench_startup_times_each_case_in_a_new_process(capsys, monkeypatch):
+    from dt_highway import bench
+
+    assert main(["bench", "startup", "--repeats", "1", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    for name in bench.STARTUP_CASES:
+        assert f"{name}  " in text, text
+    assert "target: help and a mistake answer within 0.5 s (median): met by" in text
+    # a case that fails says which, in one line
+    monkeypatch.setattr(bench, "STARTUP_CASES", {"broken": ("-c", "import sys; sys.exit('no such thing')")})
+    with pytest.raises(RuntimeError, match="broken exited with 1: no such thing"):
+        bench.bench_startup(repeats=1)
+    monkeypatch.setattr(bench, "STARTUP_CASES", {"a": ("-c", "pass"), "b": ("-c", "import time; time.sleep(1.0)")})
+    monkeypatch.setattr(bench, "STARTUP_QUICK", ("a", "b"))
+    monkeypatch.setattr(bench, "STARTUP_TARGET_S", 0.9)
+    r = bench.bench_startup(repeats=2)
+    assert r["repeats"] == 2 and r["target_met"] == {"a": True, "b": False}
+    assert r["cases"]["b"]["min_s"] >= 1.0
+    assert r["cases"]["b"]["min_s"] <= r["cases"]["b"]["median_s"] <= r["cases"]["b"]["max_s"]
+
+
 def test_bad_numbers_on_the_command_line(capsys):
     proc = subprocess.run([sys.executable, "-m", "dt_highway.cli", "twin-eval", "--episodes", "0"],
                           capture_output=True, text=True)
