@@ -13,7 +13,7 @@ they are needed; ``gym.make("dt-highway-v0")`` imports the env.
 from __future__ import annotations
 
 import importlib
-import importlib.util
+import pkgutil
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -47,7 +47,7 @@ def __getattr__(name: str) -> Any:
     when the package imported the env itself), imported on first use (PEP 562)."""
     if name in _LAZY:
         value = getattr(importlib.import_module(_LAZY[name]), name)
-    elif not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+    elif name in _submodules():
         value = importlib.import_module(f"{__name__}.{name}")
     else:
         raise AttributeError(f"module '{__name__}' has no attribute '{name}'")
@@ -55,8 +55,13 @@ def __getattr__(name: str) -> Any:
     return value
 
 
+def _submodules() -> set[str]:
+    """The package's modules and sub-packages by name (``env``, ``config``...)."""
+    return {m.name for m in pkgutil.iter_modules(__path__)}
+
+
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
+    return sorted({*globals(), *_LAZY, *_submodules()})
 
 
 __all__ = ["ConfigError", "DTConfig", "DTHighwayEnv", "ENV_ID", "Trial", "load_config", "load_trial", "__version__"]

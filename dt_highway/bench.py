@@ -12,6 +12,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -689,13 +690,26 @@ def bench_train(cfg: TrainConfig, timesteps: int = 8192, n_envs: int = 4, env_st
     }
 
 
-STARTUP_CASES: dict[str, tuple[str, ...]] = {
-    "python (nothing imported)": ("-c", "pass"),
-    "dt-highway --help": ("-m", "dt_highway.cli", "--help"),
-    "dt-highway study --help": ("-m", "dt_highway.cli", "study", "--help"),
-    "dt-highway study --bogus (a mistake)": ("-m", "dt_highway.cli", "study", "--bogus"),
-    "import dt_highway": ("-c", "import dt_highway"),
-    "import dt_highway + gym.make": ("-c", "import gymnasium as gym, dt_highway\ngym.make('dt-highway-v0').close()"),
+@dataclass(frozen=True)
+class StartupCase:
+    """One command ``bench startup`` times.
+
+    :param args: the arguments of ``python`` (``-c CODE`` or ``-m MODULE ...``)
+    :param exit_code: the status it exits with (2: a mistake on the command line)
+    """
+
+    args: tuple[str, ...]
+    exit_code: int = 0
+
+
+STARTUP_CASES: dict[str, StartupCase] = {
+    "python (nothing imported)": StartupCase(("-c", "pass")),
+    "dt-highway --help": StartupCase(("-m", "dt_highway.cli", "--help")),
+    "dt-highway study --help": StartupCase(("-m", "dt_highway.cli", "study", "--help")),
+    "dt-highway study --bogus (a mistake)": StartupCase(("-m", "dt_highway.cli", "study", "--bogus"), exit_code=2),
+    "import dt_highway": StartupCase(("-c", "import dt_highway")),
+    "import dt_highway + gym.make": StartupCase(
+        ("-c", "import gymnasium as gym, dt_highway\ngym.make('dt-highway-v0').close()")),
 }
 """What ``bench startup`` times, each in a new Python process: the command line's answers that import no
 simulation, and the package's import with and without building the env"""
@@ -707,28 +721,39 @@ STARTUP_TARGET_S = 0.5
 """Each of :data:`STARTUP_QUICK` answers within this much wall time (median) [s]"""
 
 
+def _run_case(name: str, case: StartupCase, env: dict[str, str]) -> float:
+    """Run one case in a new process.
+
+    :return: its wall time from start to exit [s]
+    :raises RuntimeError: it exited with another status than the case's (its last line of stderr)
+    """
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, *case.args], capture_output=True, text=True, env=env, check=False)
+    elapsed = time.perf_counter() - t0
+    if proc.returncode != case.exit_code:
+        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"{name} exited with {proc.returncode}: {last}")
+    return elapsed
+
+
 def bench_startup(repeats: int = 5, progress: Callable[[], None] | None = None) -> dict[str, Any]:
     """Wall time from starting Python to its exit for each of :data:`STARTUP_CASES`, in new processes.
 
-    Each case runs ``repeats`` times in turn (the first run of all may read the files from disk; the median
-    does not count it twice). The children run headless (``SDL_VIDEODRIVER=offscreen`` unless set).
+    Each case runs once untimed (so that no timed run reads the files from disk for the first time), then
+    ``repeats`` times in turn. The children run headless (``SDL_VIDEODRIVER=offscreen`` unless set).
 
-    :param repeats: runs of each case [-]
-    :param progress: called after each run (a progress bar)
+    :param repeats: timed runs of each case [-]
+    :param progress: called after each timed run (a progress bar)
     :return: median, least and most wall time per case [s], the quick answers' target and whether each met it
     :raises RuntimeError: a case failed (its last line of stderr)
     """
     env = {**os.environ, "SDL_VIDEODRIVER": os.environ.get("SDL_VIDEODRIVER", "offscreen")}
+    for name, case in STARTUP_CASES.items():
+        _run_case(name, case, env)
     times: dict[str, list[float]] = {name: [] for name in STARTUP_CASES}
     for _ in range(repeats):
-        for name, args in STARTUP_CASES.items():
-            t0 = time.perf_counter()
-            proc = subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, check=False)
-            times[name].append(time.perf_counter() - t0)
-            expected = 2 if "--bogus" in args else 0
-            if proc.returncode != expected:
-                last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
-                raise RuntimeError(f"{name} exited with {proc.returncode}: {last}")
+        for name, case in STARTUP_CASES.items():
+            times[name].append(_run_case(name, case, env))
             if progress is not None:
                 progress()
     cases = {name: {"median_s": round(float(np.median(t)), 3), "min_s": round(min(t), 3), "max_s": round(max(t), 3)}

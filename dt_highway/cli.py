@@ -117,7 +117,7 @@ def _wheel_index(text: str) -> int:
 
 
 def _window_size(text: str) -> tuple[int, int]:
-    from dt_highway.hmi.drive import parse_size  # lazy: highway-env
+    from dt_highway.hmi.window import parse_size  # lazy: cv2 and pygame (0.05 s, not the simulation)
 
     try:
         return parse_size(text)
@@ -607,7 +607,6 @@ def cmd_study(args: argparse.Namespace) -> int:
     if args.parquet:
         try:
             import pyarrow  # lazy: optional extra (pip install dt-highway[parquet]) # noqa: F401
-
         except ImportError:
             raise ConfigError("--parquet needs pyarrow: pip install 'dt-highway[parquet]'") from None
     frozen_driver, frozen_scenario = freeze_inputs(out, driver, scenario)  # the trials read the study's copies
@@ -978,7 +977,7 @@ def cmd_bench_startup(args: argparse.Namespace) -> int:
     """
     from dt_highway.bench import STARTUP_CASES, bench_startup  # lazy: highway-env
 
-    with _progress(args.repeats * len(STARTUP_CASES), "startup", args.quiet, unit="run") as bar:
+    with _progress(args.repeats * len(STARTUP_CASES), "startup", args.quiet or args.json, unit="run") as bar:
         result = bench_startup(args.repeats, bar.update)
     if args.json:
         print(dump_json(result))

@@ -46,6 +46,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from dt_highway.choices import POPULATIONS as POPULATIONS  # re-exported: its home before dt_highway.choices
 from dt_highway.errors import ConfigError
 from dt_highway.jsonio import finite_number
 

@@ -44,7 +44,10 @@ def test_import_registers_the_env_and_imports_it_when_first_used():
             "assert 'dt-highway-v0' in gym.registry and 'highway_env' not in sys.modules\n"
             "import dt_highway.hmi.screens\n"  # pygame before highway-env: no banner (gymnasium hides it)
             "assert dt_highway.DTConfig.__module__ == 'dt_highway.config' and dt_highway.env.core.DTHighwayEnv\n"
-            "assert {'load_trial', 'DTHighwayEnv', 'metrics'} <= set(dir(dt_highway))\n"
+            "assert {'load_trial', 'DTHighwayEnv', 'metrics', 'world', 'study'} <= set(dir(dt_highway))\n"
+            "assert not hasattr(dt_highway, 'no.such') and not hasattr(dt_highway, '_version_')\n"
+            "assert {n for n in dt_highway.__all__ if getattr(dt_highway, n) is not None} == {*dt_highway._LAZY, "
+            "'ConfigError', 'ENV_ID', '__version__'}\n"
             "try:\n    dt_highway.no_such_name\nexcept AttributeError as exc:\n    print(exc, file=sys.stderr)\n"
             "env = gym.make('dt-highway-v0', config={'highway': {'vehicles_count': 5}, 'camera': {'enabled': False}})\n"
             "assert type(env.unwrapped) is dt_highway.DTHighwayEnv\n")
@@ -90,10 +93,11 @@ def test_bench_startup_times_each_case_in_a_new_process(capsys, monkeypatch):
         assert f"{name}  " in text, text
     assert "target: help and a mistake answer within 0.5 s (median): met by" in text
     # a case that fails says which, in one line
-    monkeypatch.setattr(bench, "STARTUP_CASES", {"broken": ("-c", "import sys; sys.exit('no such thing')")})
+    monkeypatch.setattr(bench, "STARTUP_CASES", {"broken": bench.StartupCase(("-c", "import sys; sys.exit('no such thing')"))})
     with pytest.raises(RuntimeError, match="broken exited with 1: no such thing"):
         bench.bench_startup(repeats=1)
-    monkeypatch.setattr(bench, "STARTUP_CASES", {"a": ("-c", "pass"), "b": ("-c", "import time; time.sleep(1.0)")})
+    monkeypatch.setattr(bench, "STARTUP_CASES", {"a": bench.StartupCase(("-c", "pass")),
+                                                 "b": bench.StartupCase(("-c", "import time; time.sleep(1.0)"))})
     monkeypatch.setattr(bench, "STARTUP_QUICK", ("a", "b"))
     monkeypatch.setattr(bench, "STARTUP_TARGET_S", 0.9)
     r = bench.bench_startup(repeats=2)

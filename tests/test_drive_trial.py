@@ -855,7 +855,6 @@ def test_a_key_script_file_may_press_keys_during_the_countdown(tmp_path):
 
 
 def test_drive_that_did_not_start_prints_that_nothing_was_saved(tmp_path, monkeypatch, capsys):
-
     not_started = {"directory": str(tmp_path / "s" / "trials" / "P01-adas"), "status": "not started",
                    "end_reason": "quit before the start", "frames": 0, "screenshots": 0}
     monkeypatch.setattr("dt_highway.hmi.drive.run_drive", lambda opts: not_started)

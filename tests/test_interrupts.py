@@ -42,7 +42,6 @@ def test_every_interrupt_fired_into_numba_code_is_recognised_as_the_users():
 @pytest.mark.parametrize("raised, code", [(numba_interrupt, 130), (lambda: SystemError("a real bug"), None)])
 def test_the_cli_exits_130_on_ctrl_c_inside_numba_code_and_lets_a_real_system_error_through(monkeypatch, capsys,
                                                                                              raised, code):
-
     def boom(*args, **kwargs):
         raise raised()
 

@@ -268,7 +268,7 @@ def test_the_import_check_sees_every_kind_of_import():
 
 @pytest.mark.parametrize(("code", "in_hmi"), [
     ("from dt_highway import DTHighwayEnv", False),  # the top-level re-export of the env
-    ("from dt_highway import ENV_ID", False),  # a plain value re-exported from the env package
+    ("from dt_highway import ENV_ID", False),  # the env's id (a plain value the env package re-exports)
     ("from dt_highway.camera.render import CameraTruth", True),  # a re-export of the truth
     ("from dt_highway.perception.detect import CameraTruth", True),
     ("from dt_highway import load_trial", True),  # the trial log (it logs the truth)

@@ -48,6 +48,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
+from dt_highway import ENV_ID as ENV_ID  # re-exported: defined here before import dt_highway stopped importing the env
 from dt_highway.camera.pinhole import Intrinsics, Mount, PinholeCamera, Pose
 from dt_highway.camera.render import (
     CameraImage,

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from dt_highway.choices import SCORE_THRESHOLDS, TEST_SEED
+from dt_highway.choices import TRAIN_SEED as TRAIN_SEED  # re-exported: its home before dt_highway.choices
 from dt_highway.config import DTConfig
 from dt_highway.evaluation.intent import Episode, record_episodes
 from dt_highway.evaluation.intent_train import numpy_layers, train_epochs

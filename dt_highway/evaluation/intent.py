@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
+from dt_highway.choices import INTENT_EPISODES as INTENT_EPISODES  # re-exported: its home before dt_highway.choices
 from dt_highway.config import ConfigError, DTConfig, IntentionConfig, merge
 from dt_highway.drivers import Driver
 from dt_highway.env import DTHighwayEnv

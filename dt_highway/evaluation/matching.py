@@ -290,9 +290,6 @@ def _settings(cfg: DTConfig, seed: int, bench: BenchmarkSettings) -> dict[str, A
     }
 
 
-
-
-
 def write_outputs(result: MatchingResult, out: Path) -> list[Path]:
     """Write ``curve.csv``, ``summary.json``, ``frames.csv`` and ``curve.png``.
 

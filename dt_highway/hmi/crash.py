@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
 
+from dt_highway.choices import CRASH_POLICIES as CRASH_POLICIES  # re-exported: its home before dt_highway.choices
 from dt_highway.env.core import DTHighwayEnv
 from dt_highway.hmi.screens import _scale, _text
 

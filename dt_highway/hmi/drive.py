@@ -39,7 +39,6 @@ from __future__ import annotations
 import json
 import math
 import queue
-import re
 import shutil
 import sys
 import threading
@@ -83,10 +82,20 @@ from dt_highway.hmi.screens import (
     dialog,
     show_card,
 )
-from dt_highway.hmi.window import DRIVING_KEYS, PYGAME_KEYS, WINDOW_TITLE, SignalScope, _key_names, _Signals, _Window
+from dt_highway.hmi.window import (
+    DRIVING_KEYS,
+    PYGAME_KEYS,
+    SIZE_LIMITS_PX,
+    WINDOW_TITLE,
+    SignalScope,
+    _key_names,
+    _Signals,
+    _Window,
+    parse_size,
+)
 from dt_highway.metrics.trial_log import TrialRecorder, TrialWriter
 
-__all__ = [  # this module's own, and (re-exported) what the split of this module moved to crash, picture, screens and window
+__all__ = [  # this module's own, and (re-exported) what moved to crash, picture, screens, window and dt_highway.choices
     "CRASH_BANNER_S", "CRASH_FLASH_S", "CRASH_POLICIES", "DRIVING_KEYS", "END_SCREEN_S", "LEGEND", "MIRROR_FRACTION",
     "PAUSE_LINES", "PYGAME_KEYS", "QUIT_LINES", "REALTIME_MIN_S", "REALTIME_WARN_BELOW", "SIZE_LIMITS_PX",
     "TRIAL_SIMULATION_HZ", "WINDOW_TITLE", "CrashBeep", "DriveOptions", "Hud", "SignalScope", "beep_samples", "card",
@@ -109,10 +118,6 @@ REALTIME_MIN_S = 10.0
 simulation lags the clock by up to one step and the window's loop ends a moment after the last step, about
 0.05-0.1 s, which would read as slow motion in a trial stopped after a second or two"""
 
-SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
-"""Allowed window sizes: (width min, max), (height min, max) [px]"""
-
-
 def wall_time(t_mono: float | None = None) -> str:
     """The wall clock, ISO 8601 in UTC to the millisecond.
 
@@ -121,23 +126,6 @@ def wall_time(t_mono: float | None = None) -> str:
     """
     epoch = time.time() - (0.0 if t_mono is None else time.monotonic() - t_mono)
     return datetime.fromtimestamp(epoch, UTC).isoformat(timespec="milliseconds")
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """A window size from ``WIDTHxHEIGHT``.
-
-    :param text: e.g. ``1280x720``
-    :return: ``(width, height)`` [px]
-    :raises ConfigError: one line naming the allowed form and range
-    """
-    (w_lo, w_hi), (h_lo, h_hi) = SIZE_LIMITS_PX
-    m = re.fullmatch(r"\s*(\d{1,5})\s*[xX]\s*(\d{1,5})\s*", text or "")
-    if m is not None:
-        w, h = int(m.group(1)), int(m.group(2))
-        if w_lo <= w <= w_hi and h_lo <= h <= h_hi:
-            return w, h
-    raise ConfigError(f"--size must be WIDTHxHEIGHT in pixels, width {w_lo}..{w_hi} and height {h_lo}..{h_hi}, "
-                      f"e.g. 1280x720 (got {text!r})")
 
 
 def drive_config(condition: str, steering: bool = False) -> dict[str, Any]:

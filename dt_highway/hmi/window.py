@@ -11,6 +11,7 @@ gets each picture put on the window once.
 from __future__ import annotations
 
 import queue
+import re
 import signal
 import threading
 import time
@@ -21,6 +22,29 @@ from typing import Any, Protocol, Self
 import cv2
 import numpy as np
 import pygame  # without its banner: gymnasium, which dt_highway imports first, sets PYGAME_HIDE_SUPPORT_PROMPT
+
+from dt_highway.errors import ConfigError
+
+SIZE_LIMITS_PX = ((160, 4096), (90, 4096))
+"""Allowed window sizes: (width min, max), (height min, max) [px]"""
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """A window size from ``WIDTHxHEIGHT``.
+
+    :param text: e.g. ``1280x720``
+    :return: ``(width, height)`` [px]
+    :raises ConfigError: one line naming the allowed form and range
+    """
+    (w_lo, w_hi), (h_lo, h_hi) = SIZE_LIMITS_PX
+    m = re.fullmatch(r"\s*(\d{1,5})\s*[xX]\s*(\d{1,5})\s*", text or "")
+    if m is not None:
+        w, h = int(m.group(1)), int(m.group(2))
+        if w_lo <= w <= w_hi and h_lo <= h <= h_hi:
+            return w, h
+    raise ConfigError(f"--size must be WIDTHxHEIGHT in pixels, width {w_lo}..{w_hi} and height {h_lo}..{h_hi}, "
+                      f"e.g. 1280x720 (got {text!r})")
+
 
 WINDOW_TITLE = "dt-highway"
 """The window's title (never the condition)"""
