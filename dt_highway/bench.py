@@ -707,12 +707,15 @@ STARTUP_CASES: dict[str, StartupCase] = {
     "dt-highway --help": StartupCase(("-m", "dt_highway.cli", "--help")),
     "dt-highway study --help": StartupCase(("-m", "dt_highway.cli", "study", "--help")),
     "dt-highway study --bogus (a mistake)": StartupCase(("-m", "dt_highway.cli", "study", "--bogus"), exit_code=2),
+    "dt-highway run --set nosuch=1 (a bad setting)": StartupCase(("-m", "dt_highway.cli", "run", "--set", "nosuch=1"),
+                                                                 exit_code=2),
     "import dt_highway": StartupCase(("-c", "import dt_highway")),
     "import dt_highway + gym.make": StartupCase(
         ("-c", "import gymnasium as gym, dt_highway\ngym.make('dt-highway-v0').close()")),
 }
 """What ``bench startup`` times, each in a new Python process: the command line's answers that import no
-simulation, and the package's import with and without building the env"""
+simulation (help, a mistyped option, a bad setting: the configuration is checked first), and the package's import
+with and without building the env"""
 
 STARTUP_QUICK = ("dt-highway --help", "dt-highway study --help", "dt-highway study --bogus (a mistake)")
 """The answers that should feel immediate: help and a mistyped option"""

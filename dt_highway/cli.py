@@ -55,7 +55,9 @@ if TYPE_CHECKING:
 # Every command imports what it runs when it runs, so that ``dt-highway --help``, each command's ``--help`` and a
 # mistyped option answer in well under a second: the parser needs only the light modules above (the choices it
 # offers, the error it reports). The simulation (highway-env, matplotlib, numba), the report (scipy.stats), the
-# learned detector (torch) and RL training (stable-baselines3 and torch) take 2-4 s to import.
+# learned detector (torch) and RL training (stable-baselines3 and torch) take 2-4 s to import. Where a command checks
+# its settings and options (``--set``, ``--scenario``, a clash of options), it does so before it imports the
+# simulation, so that a mistake there answers in under a second too.
 
 
 class _Parser(argparse.ArgumentParser):
@@ -217,7 +219,6 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
     :return: the exit status (0 on success)
     """
     from dt_highway.config import override_value  # lazy: pydantic
-    from dt_highway.evaluation.twin import episode_steps, evaluate_twin  # lazy: highway-env
 
     if args.population is not None:
         for text in args.overrides:
@@ -240,6 +241,8 @@ def cmd_twin_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"{' and '.join(given)} {'go' if len(given) > 1 else 'goes'} with --intent")
     cfg = _config(args)
     episodes = args.episodes or 3
+    from dt_highway.evaluation.twin import episode_steps, evaluate_twin  # lazy: highway-env
+
     steps = episodes * episode_steps(cfg)
     with _progress(steps, "twin-eval", args.quiet or args.json) as bar:
         result = evaluate_twin(cfg, episodes, args.seed, args.min_observed_s or MIN_OBSERVED_S, progress=bar.update)
@@ -291,28 +294,18 @@ def _write_result(path: str, result: Any) -> None:
 def _intent_driver(args: argparse.Namespace) -> tuple[Driver | None, dict[str, Any] | None]:
     """The ``--driver`` of ``twin-eval --intent`` and ``train-intent``: the driver, and what it adds to the
     configuration (the baseline condition and the driver's overrides, as in a study trial)."""
+    if args.driver is None:
+        return None, None
     from dt_highway.conditions import condition_config  # lazy: highway-env
     from dt_highway.config import deep_merge  # lazy: pydantic
     from dt_highway.drivers import load_driver  # lazy: highway-env
 
-    if args.driver is None:
-        return None, None
     driver = load_driver(args.driver)
     return driver, deep_merge(condition_config("baseline"), driver.config_overrides())
 
 
 def _twin_eval_intent(args: argparse.Namespace) -> int:
     """``twin-eval --intent [--sweep]``: the lane-change intention against the simulator's truth."""
-    from dt_highway.evaluation.intent import (  # lazy: highway-env
-        evaluate_intent,
-        format_intent,
-        format_sweep,
-        run_intent_sweep,
-        sweep_steps,
-    )
-    from dt_highway.evaluation.intent_oracle import OracleSettings  # lazy: highway-env
-    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
-
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     driver, extra = _intent_driver(args)
@@ -339,6 +332,16 @@ def _twin_eval_intent(args: argparse.Namespace) -> int:
         raise ConfigError(f"--oracle-hide and --oracle-reveal both name {','.join(both)}: choose one")
     if "attempts" in args.oracle_reveal and "chases" in args.oracle_hide:
         raise ConfigError("--oracle-reveal attempts gives the chases too: it cannot go with --oracle-hide chases")
+    from dt_highway.evaluation.intent import (  # lazy: highway-env
+        evaluate_intent,
+        format_intent,
+        format_sweep,
+        run_intent_sweep,
+        sweep_steps,
+    )
+    from dt_highway.evaluation.intent_oracle import OracleSettings  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
+
     if args.sweep:
         with _progress(sweep_steps(cfg, episodes), "intent sweep", args.quiet or args.json) as bar:
             result = run_intent_sweep(cfg, episodes, args.seed, progress=bar.update, driver=driver)
@@ -364,12 +367,12 @@ def cmd_train_tagger(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-tagger``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.tagger_train import train_tagger, training_steps  # lazy: highway-env
-
     args.overrides = [f"traffic.population={args.population}", *args.overrides]
     cfg = _config(args)
     _weights_out(args, ".json")
     seeds = list(range(args.seed, args.seed + args.seeds))
+    from dt_highway.evaluation.tagger_train import train_tagger, training_steps  # lazy: highway-env
+
     with _progress(training_steps(cfg, seeds, args.episodes), "train-tagger", args.quiet) as bar:
         try:
             summary = train_tagger(cfg, seeds, args.episodes, args.out, progress=bar.update)
@@ -387,8 +390,6 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
     :return: the exit status (0 on success)
     """
     from dt_highway.config import deep_merge, merge, parse_override  # lazy: pydantic
-    from dt_highway.evaluation.intent_train import train_intention  # lazy: highway-env
-    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
 
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
@@ -402,6 +403,9 @@ def cmd_train_intent(args: argparse.Namespace) -> int:
             raise ConfigError(f"train-intent trains the learned network: twin.intention.model = "
                               f"{tree.twin.intention.model!r} ({where}) has no weights to train; drop it")
     _weights_out(args, ".npz")
+    from dt_highway.evaluation.intent_train import train_intention  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
+
     record = _progress(args.episodes * episode_steps(cfg), "record", args.quiet)
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     with record, fitting:
@@ -423,13 +427,13 @@ def cmd_train_chase(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway train-chase``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.chase_train import train_chase  # lazy: highway-env
-    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
-
     if args.scenario is None:
         args.scenario = EVAL_SCENARIO
     cfg = _config(args)
     _weights_out(args, ".npz")
+    from dt_highway.evaluation.chase_train import train_chase  # lazy: highway-env
+    from dt_highway.evaluation.twin import episode_steps  # lazy: highway-env
+
     record = _progress((args.episodes + args.test_episodes) * episode_steps(cfg), "record", args.quiet)
     fitting = _progress(args.epochs, "fit", args.quiet, unit="epoch")
     with record, fitting:
@@ -461,9 +465,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway run``
     :return: the exit status (0 on success)
     """
+    cfg = _config(args)
     from dt_highway.evaluation.twin import episode_steps, evaluate_twin  # lazy: highway-env
 
-    cfg = _config(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     steps = args.episodes * episode_steps(cfg)
@@ -799,12 +803,12 @@ def cmd_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway camera``
     :return: the exit status (0 on success)
     """
-    from dt_highway.evaluation.frames import frame_files, record_frames  # lazy: highway-env
-
     cfg = _config(args, {"camera": {"enabled": True}, "ego": {"autopilot": True}})
     if not cfg.camera.enabled:
         raise ConfigError("dt-highway camera needs the camera: drop --set camera.enabled=false")
     out = Path(args.out)
+    from dt_highway.evaluation.frames import frame_files, record_frames  # lazy: highway-env
+
     if args.force:  # the earlier frames go, so the folder matches its config.json
         for frame in frame_files(out):
             frame.unlink()
@@ -826,7 +830,6 @@ def cmd_matching(args: argparse.Namespace) -> int:
     :return: the exit status (0 on success)
     """
     from dt_highway.config import merge  # lazy: pydantic
-    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep  # lazy: highway-env
 
     cfg = _config(args)
     kinds = [k.strip() for k in (args.detectors or cfg.detector.kind).split(",") if k.strip()]
@@ -838,6 +841,8 @@ def cmd_matching(args: argparse.Namespace) -> int:
     if args.sweep and len(kinds) > 1:
         raise ConfigError(f"--sweep runs with one detector: give --detectors {kinds[0]} or {kinds[1]} with it "
                           f"(got '{args.detectors}')")
+    from dt_highway.evaluation.matching import run_matching, run_sweep, write_outputs, write_sweep  # lazy: highway-env
+
     out = Path(args.out)
     if args.force:  # the earlier run's outputs go, so the folder holds this run's alone
         for folder in (out, out / "simulated", out / "learned"):
@@ -890,9 +895,9 @@ def cmd_bench_camera(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench camera``
     :return: the exit status (0 on success)
     """
+    cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     from dt_highway.bench import bench_camera  # lazy: highway-env
 
-    cfg = _config(args, {"highway": {"vehicles_count": 50}, "twin": {"preroll_s": 10.0}})
     with _progress(args.scenes, "bench camera", args.quiet or args.json) as bar:
         result = bench_camera(cfg, args.scenes, args.repeats, progress=bar.update)
     if args.json:
@@ -998,14 +1003,14 @@ def cmd_bench_memory(args: argparse.Namespace) -> int:
     :param args: the parsed command line of ``dt-highway bench memory``
     :return: the exit status (0 on success)
     """
-    from dt_highway.bench import bench_memory  # lazy: highway-env
-
     if args.every_min > args.hours * 60 / 2:  # two samples at least: a shorter run would be made longer
         default = " (the default)" if args.every_min == 10.0 else ""
         raise ConfigError(f"--every-min must be at most half of --hours in minutes ({args.hours * 30:g} for --hours "
                           f"{args.hours:g}; got {args.every_min:g}{default})")
     cfg = _config(args)
     steps = int(args.hours * 3600 * cfg.highway.policy_frequency)
+    from dt_highway.bench import bench_memory  # lazy: highway-env
+
     with _progress(steps, "bench memory", args.quiet or args.json) as bar:
         result = bench_memory(cfg, args.hours, args.every_min, progress=bar.update)
     if args.json:

@@ -39,6 +39,31 @@ def test_help_and_a_mistyped_command_line_import_no_simulation(argv):
     assert proc.stdout.strip() or "error" in proc.stderr  # it answered: help, or the one-line error
 
 
+SIMULATION = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pandas", "stable_baselines3", "dt_highway.env",
+              "dt_highway.world")
+"""What a mistake in a command's settings has no need of: the configuration is checked before the simulation loads"""
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["run", "--set", "nosuch.key=1"], "unknown key 'nosuch'"),
+    (["run", "--scenario", "nosuch.toml"], "scenario file 'nosuch.toml' does not exist"),
+    (["twin-eval", "--sweep"], "--sweep goes with --intent"),
+    (["twin-eval", "--intent", "--oracle-hide", "positions"], "--oracle-hide goes with --oracle N"),
+    (["camera", "--out", "OUT", "--set", "camera.enabled=false"], "needs the camera"),
+    (["matching", "--out", "OUT", "--detectors", "bogus"], "--detectors takes simulated and/or learned"),
+    (["train-intent", "--out", "OUT/w.npz", "--set", "twin.intention.model=physics"], "trains the learned network"),
+    (["bench", "memory", "--hours", "0.01"], "--every-min must be at most half of --hours"),
+])
+def test_a_mistake_in_the_settings_answers_before_the_simulation_is_imported(argv, message, tmp_path):
+    argv = [a.replace("OUT", str(tmp_path)) for a in argv]
+    code = (f"import sys\nfrom dt_highway.cli import main\nstatus = main({argv!r})\n"
+            f"print(status, [m for m in sys.modules if m.startswith({SIMULATION!r})], file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    error, checked = proc.stderr.splitlines()[-2:]
+    assert message in error and error.startswith("dt-highway "), proc.stderr
+    assert checked == "2 []", proc.stderr
+
+
 def test_import_registers_the_env_and_imports_it_when_first_used():
     code = ("import sys\nimport gymnasium as gym\nimport dt_highway\n"
             "assert 'dt-highway-v0' in gym.registry and 'highway_env' not in sys.modules\n"
