@@ -1176,14 +1176,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     :return: the exit status (0 on success)
     """
     from dt_highway.config import load_config  # lazy: pydantic
-    from dt_highway.drivers import load_driver  # lazy: highway-env
-    from dt_highway.evaluation.rl import evaluate as evaluate_driver  # lazy: highway-env
 
     if args.episodes_json and not args.json:
         raise ConfigError("--episodes-json needs --json (--out FILE writes every episode's metrics without it)")
     scenario = args.scenario or EVAL_SCENARIO
-    driver = load_driver(args.driver)  # mistakes in the driver or the scenario: one line, before the bar
-    load_config(scenario, args.overrides)
+    load_config(scenario, args.overrides)  # mistakes in the scenario or the driver: one line, before the bar
+    from dt_highway.drivers import load_driver  # lazy: highway-env
+    from dt_highway.evaluation.rl import evaluate as evaluate_driver  # lazy: highway-env
+
+    driver = load_driver(args.driver)
     bars: list[tqdm] = []  # the bar appears once the env accepted the driver (else the error stands alone)
 
     def progress(n: int) -> None:

@@ -53,6 +53,8 @@ SIMULATION = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pandas", 
     (["matching", "--out", "OUT", "--detectors", "bogus"], "--detectors takes simulated and/or learned"),
     (["train-intent", "--out", "OUT/w.npz", "--set", "twin.intention.model=physics"], "trains the learned network"),
     (["bench", "memory", "--hours", "0.01"], "--every-min must be at most half of --hours"),
+    (["evaluate", "--driver", "agents/idm.toml", "--set", "nosuch=1"], "unknown key 'nosuch'"),
+    (["evaluate", "--driver", "agents/idm.toml", "--episodes-json"], "--episodes-json needs --json"),
 ])
 def test_a_mistake_in_the_settings_answers_before_the_simulation_is_imported(argv, message, tmp_path):
     argv = [a.replace("OUT", str(tmp_path)) for a in argv]
