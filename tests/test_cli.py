@@ -1,5 +1,6 @@
 """End-to-end runs of each command on small inputs."""
 
+import ast
 import io
 import json
 import os
@@ -24,24 +25,35 @@ def test_help_lists_commands(capsys):
         assert cmd in proc.stdout
 
 
-HEAVY = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pygame", "pandas", "cv2", "pydantic",
-         "stable_baselines3", "dt_highway.env", "dt_highway.config", "dt_highway.study")
+SIMULATION = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pandas", "stable_baselines3", "dt_highway.env",
+              "dt_highway.world")
+"""What a mistake in a command's settings has no need of: the configuration is checked before the simulation loads"""
+
+HEAVY = (*SIMULATION, "pygame", "cv2", "pydantic", "dt_highway.config", "dt_highway.study")
 """What ``dt-highway --help`` has no need of (2-4 s to import): the simulation, the config models, the study"""
+
+
+def _main_in_a_new_process(argv: list[str], watched: tuple[str, ...]) -> tuple[object, str, str, list[str]]:
+    """Run ``main(argv)`` in a new Python process.
+
+    :return: what ``main`` returned (``'SystemExit(code)'`` for help or an argparse error), its stdout, its stderr,
+        and the modules of ``watched`` it imported
+    """
+    code = (f"import sys\nfrom dt_highway.cli import main\ntry:\n    status = main({argv!r})\n"
+            f"except SystemExit as exc:\n    status = f'SystemExit({{exc.code}})'\n"
+            f"print(repr((status, [m for m in sys.modules if m.startswith({watched!r})])), file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    *before, last = proc.stderr.splitlines() or [""]
+    status, imported = ast.literal_eval(last)
+    return status, proc.stdout, "\n".join(before), imported
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["study", "--help"], ["session", "--help"], ["bench", "sim", "--help"],
                                   ["study", "--bogus"], ["drive", "--condition", "nope"], []])
 def test_help_and_a_mistyped_command_line_import_no_simulation(argv):
-    code = (f"import sys\nfrom dt_highway.cli import main\ntry:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
-            f"print([m for m in sys.modules if m.startswith({HEAVY!r})], file=sys.stderr)")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert proc.stderr.splitlines()[-1] == "[]", proc.stderr
-    assert proc.stdout.strip() or "error" in proc.stderr  # it answered: help, or the one-line error
-
-
-SIMULATION = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pandas", "stable_baselines3", "dt_highway.env",
-              "dt_highway.world")
-"""What a mistake in a command's settings has no need of: the configuration is checked before the simulation loads"""
+    _, out, err, imported = _main_in_a_new_process(argv, HEAVY)
+    assert imported == [], err
+    assert out.strip() or "error" in err  # it answered: help, or the one-line error
 
 
 @pytest.mark.parametrize(("argv", "message"), [
@@ -58,12 +70,10 @@ SIMULATION = ("highway_env", "matplotlib", "scipy", "torch", "numba", "pandas", 
 ])
 def test_a_mistake_in_the_settings_answers_before_the_simulation_is_imported(argv, message, tmp_path):
     argv = [a.replace("OUT", str(tmp_path)) for a in argv]
-    code = (f"import sys\nfrom dt_highway.cli import main\nstatus = main({argv!r})\n"
-            f"print(status, [m for m in sys.modules if m.startswith({SIMULATION!r})], file=sys.stderr)")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    error, checked = proc.stderr.splitlines()[-2:]
-    assert message in error and error.startswith("dt-highway "), proc.stderr
-    assert checked == "2 []", proc.stderr
+    status, _, err, imported = _main_in_a_new_process(argv, SIMULATION)
+    error = err.splitlines()[-1]
+    assert message in error and error.startswith("dt-highway "), err
+    assert (status, imported) == (2, []), err
 
 
 def test_import_registers_the_env_and_imports_it_when_first_used():
